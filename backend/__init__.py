@@ -1,0 +1,1 @@
+"""The SLAM system: geometry, optimization, evaluation. Imports no viser and no app."""

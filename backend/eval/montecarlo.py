@@ -1,0 +1,217 @@
+"""The Monte-Carlo study of the paper (§IV-B, DESIGN §4): noisy measurements of a
+sequence's world, landmark initialization from the perturbed poses, and the six variants
+solved by Gauss-Newton from identical data, with medians over seeded runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from backend.eval import sequences
+from backend.eval.trajectory import translational_rmse
+from backend.geometry import line as line_geo
+from backend.geometry import plane as plane_geo
+from backend.geometry import so3
+from backend.geometry.se3 import Poses
+from backend.optim.problem import VARIANTS, Observations, Odometry, PosePrior, ProblemData, build_problem
+from backend.optim.solver import SolveReport, gauss_newton
+
+SIGMA_PX = 1.0
+SIGMA_ROT_RAD = np.deg2rad(1.0)
+SIGMA_POS_M = 0.10
+PRIOR_SIGMA = 1e-6  # rad and m: the gauge
+MAX_ITERATIONS = 10
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseModel:
+    """Measurement and initialization noise (standard deviations). Zero gives exact data."""
+
+    pixel: float = SIGMA_PX
+    rotation_rad: float = SIGMA_ROT_RAD
+    position_m: float = SIGMA_POS_M
+
+
+def _triangulate_points(x_norm: list[np.ndarray], poses: list[np.ndarray], R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Linear (DLT) triangulation of each point from normalized observations."""
+    out = np.empty((len(x_norm), 3))
+    for i, (x, k) in enumerate(zip(x_norm, poses)):
+        Rt = np.swapaxes(R[k], 1, 2)
+        P = np.concatenate([Rt, -np.einsum("nij,nj->ni", Rt, t[k])[:, :, None]], axis=2)  # (n, 3, 4)
+        A = np.concatenate([x[:, 0:1] * P[:, 2] - P[:, 0], x[:, 1:2] * P[:, 2] - P[:, 1]], axis=0)
+        _, _, Vt = np.linalg.svd(A)
+        X = Vt[-1]
+        out[i] = X[:3] / X[3] if abs(X[3]) > 1e-12 else np.full(3, np.nan)
+    return out
+
+
+def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise: NoiseModel = NoiseModel()) -> ProblemData:
+    """Simulate one run: noisy observations, perturbed initial poses with odometry between
+    them, a prior on pose 0 at its true value, landmarks initialized from the initial poses."""
+    cam = world.camera
+    N = len(world.t_world_camera)
+
+    # Points: observed where visible; anchor = first observing pose.
+    uv, ok = sequences.visible(world, world.points)
+    seen = ok.sum(axis=0) >= 2
+    pts = np.flatnonzero(seen)
+    # Lines: both endpoints visible.
+    uv_s, ok_s = sequences.visible(world, world.segments[:, 0])
+    uv_e, ok_e = sequences.visible(world, world.segments[:, 1])
+    ok_l = ok_s & ok_e
+    lines = np.flatnonzero(ok_l.sum(axis=0) >= 2)
+
+    # Noise draws in a fixed order (reproducible per seed).
+    uv_noisy = uv + noise.pixel * rng.standard_normal(uv.shape)
+    uv_s_noisy = uv_s + noise.pixel * rng.standard_normal(uv_s.shape)
+    uv_e_noisy = uv_e + noise.pixel * rng.standard_normal(uv_e.shape)
+    R_init = so3.exp(noise.rotation_rad * rng.standard_normal((N, 3))) @ world.R_world_camera
+    t_init = world.t_world_camera + noise.position_m * rng.standard_normal((N, 3))
+
+    # Point observations.
+    k_idx, p_idx = np.nonzero(ok[:, pts])
+    point_obs = Observations(landmark=p_idx, pose=k_idx, uv=uv_noisy[k_idx, pts[p_idx]], offset=np.zeros((len(k_idx), 3)))
+    point_anchor = np.argmax(ok[:, pts], axis=0)
+    point_anchor_uv = uv_noisy[point_anchor, pts]
+    order = np.argsort(p_idx, kind="stable")
+    splits = np.cumsum(np.bincount(p_idx, minlength=len(pts)))[:-1]
+    x_all = cam.normalize(point_obs.uv[order])
+    X = _triangulate_points(np.split(x_all, splits), np.split(k_idx[order], splits), R_init, t_init)
+    p_anchor = np.einsum("nji,nj->ni", R_init[point_anchor], X - t_init[point_anchor])
+    rho = 1.0 / p_anchor[:, 2]
+    bad = ~np.isfinite(rho) | (rho <= 0)
+    rho[bad] = 1.0 / 4.0  # fall back to a plausible depth for a failed triangulation
+
+    # Line observations and two-view initialization (anchor and the view whose
+    # back-projection plane is most different from the anchor's).
+    k_l, l_idx = np.nonzero(ok_l[:, lines])
+    seg_uv = np.concatenate([uv_s_noisy[k_l, lines[l_idx]], uv_e_noisy[k_l, lines[l_idx]]], axis=1)
+    line_obs = Observations(landmark=l_idx, pose=k_l, uv=seg_uv, offset=np.zeros((len(k_l), 3)))
+    line_anchor = np.argmax(ok_l[:, lines], axis=0)
+    line_anchor_uv = np.concatenate([uv_s_noisy[line_anchor, lines], uv_e_noisy[line_anchor, lines]], axis=1)
+    n_obs = np.cross(cam.normalize(seg_uv[:, :2]), cam.normalize(seg_uv[:, 2:]))
+    n_obs /= np.linalg.norm(n_obs, axis=1, keepdims=True)
+    N_world = np.einsum("mij,mj->mi", R_init[k_l], n_obs)
+    is_anchor = k_l == line_anchor[l_idx]
+    a_obs = np.empty(len(lines), int)
+    a_obs[l_idx[is_anchor]] = np.flatnonzero(is_anchor)
+    sin_angle = np.linalg.norm(np.cross(N_world, N_world[a_obs[l_idx]]), axis=1)
+    by_line_then_angle = np.lexsort((sin_angle, l_idx))
+    last_of_line = np.cumsum(np.bincount(l_idx, minlength=len(lines))) - 1
+    best = by_line_then_angle[last_of_line]
+    N1, N2 = N_world[a_obs], N_world[best]
+    d1 = -np.sum(N1 * t_init[k_l[a_obs]], axis=1)
+    d2 = -np.sum(N2 * t_init[k_l[best]], axis=1)
+    m, v = line_geo.from_two_planes(N1, d1, N2, d2)
+    line_U, line_phi = line_geo.to_orthonormal(m, v)
+
+    # Planes: least-squares fit to the triangulated points of each wall.
+    plane_n = np.empty((len(world.plane_n), 3))
+    plane_d = np.empty(len(world.plane_n))
+    for q in range(len(world.plane_n)):
+        sel = (world.point_plane[pts] == q) & np.all(np.isfinite(X), axis=1)
+        n, d = plane_geo.fit_plane(X[sel])
+        if n @ world.plane_n[q] < 0:
+            n, d = -n, -d
+        plane_n[q], plane_d[q] = n, d
+
+    R_i = R_init[:-1]
+    R_i_j = np.swapaxes(R_i, 1, 2) @ R_init[1:]
+    t_i_j = np.einsum("nji,nj->ni", R_i, t_init[1:] - t_init[:-1])
+    odometry = Odometry(
+        i=np.arange(N - 1), j=np.arange(1, N), R_i_j=R_i_j, t_i_j=t_i_j,
+        sigma_rot=np.sqrt(2.0) * max(noise.rotation_rad, 1e-3 * SIGMA_ROT_RAD),
+        sigma_pos=np.sqrt(2.0) * max(noise.position_m, 1e-3 * SIGMA_POS_M),
+    )
+    prior = PosePrior(index=np.array([0]), R_world_camera=world.R_world_camera[:1], t_world_camera=world.t_world_camera[:1], sigma_rot=PRIOR_SIGMA, sigma_pos=PRIOR_SIGMA)
+    return ProblemData(
+        camera=cam,
+        poses=Poses(R_init, t_init),
+        point_anchor=point_anchor,
+        point_anchor_uv=point_anchor_uv,
+        point_rho=rho,
+        point_plane=world.point_plane[pts],
+        point_obs=point_obs,
+        line_anchor=line_anchor,
+        line_anchor_uv=line_anchor_uv,
+        line_U=line_U,
+        line_phi=line_phi,
+        line_plane=world.segment_plane[lines],
+        line_obs=line_obs,
+        plane_n=plane_n,
+        plane_d=plane_d,
+        odometry=odometry,
+        prior=prior,
+        sigma_px=SIGMA_PX,
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class RunResult:
+    variant: str
+    run: int
+    rmse_cm: float
+    report: SolveReport
+
+
+@dataclasses.dataclass(frozen=True)
+class VariantSummary:
+    """Medians over runs: RMSE (cm), optimization time (ms), iterations; counts are exact."""
+
+    items: int
+    params: int
+    rmse_cm_median: float
+    time_ms_median: float
+    iterations_median: float
+    linearize_ms_median: float
+    solve_ms_median: float
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def run_variant(data: ProblemData, variant: str, world: sequences.World, *, max_iterations: int = MAX_ITERATIONS) -> tuple[float, SolveReport]:
+    """Solve one variant; return translational RMSE (cm, no alignment) and the report."""
+    problem = build_problem(data, variant)
+    state, report = gauss_newton(problem, max_iterations=max_iterations)
+    rmse_m = translational_rmse(state.poses.t_world_camera, world.t_world_camera)
+    return 100.0 * rmse_m, report
+
+
+def run_study(
+    sequence: str,
+    *,
+    runs: int = 30,
+    seed: int = 0,
+    variants: Sequence[str] = VARIANTS,
+    on_run: Callable[[int], None] | None = None,
+) -> tuple[dict[str, VariantSummary], list[RunResult]]:
+    """Run the study: the world of `sequence` (landmarks from `seed`), `runs` noise draws
+    (run r uses seed `(seed, r)`), every variant on each draw's identical data."""
+    if runs < 1:
+        raise ValueError("runs must be at least 1")
+    world = sequences.make_world(sequence, seed=seed)
+    results: list[RunResult] = []
+    for r in range(runs):
+        data = make_problem_data(world, np.random.default_rng([seed, r]))
+        for v in variants:
+            rmse_cm, report = run_variant(data, v, world)
+            results.append(RunResult(v, r, rmse_cm, report))
+        if on_run is not None:
+            on_run(r)
+    summary = {}
+    for v in variants:
+        rs = [x for x in results if x.variant == v]
+        summary[v] = VariantSummary(
+            items=rs[0].report.items,
+            params=rs[0].report.params,
+            rmse_cm_median=float(np.median([x.rmse_cm for x in rs])),
+            time_ms_median=float(np.median([x.report.time_ms for x in rs])),
+            iterations_median=float(np.median([x.report.iterations for x in rs])),
+            linearize_ms_median=float(np.median([x.report.linearize_ms for x in rs])),
+            solve_ms_median=float(np.median([x.report.solve_ms for x in rs])),
+        )
+    return summary, results

@@ -1,0 +1,301 @@
+"""Residuals and analytic Jacobians of every factor type, vectorized over observations.
+
+Each function takes stacked inputs (leading axis M = observations) and returns the
+*unwhitened* residual (M, r) and a dict of Jacobian blocks (M, r, dim) keyed by slot:
+`"anchor"`/`"pose"` (6: `(δθ, δt)`, see :mod:`backend.geometry.se3`), `"rho"` (1),
+`"line"` (4: `(δθ, δφ)`, see :mod:`backend.geometry.line`), `"plane"` (3: `(δn, δd)`, see
+:mod:`backend.geometry.plane`). Frames: poses are `T_world_camera`; an observation from a
+camera whose centre sits at `offset` (metres, in the left camera frame; `(b, 0, 0)` for the
+right camera of a rectified stereo pair) is projected through that camera.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from backend.geometry import so3
+from backend.geometry.camera import PinholeCamera
+
+Blocks = dict[str, np.ndarray]
+
+_E1 = np.array([1.0, 0.0, 0.0])
+_E2 = np.array([0.0, 1.0, 0.0])
+
+
+def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    return np.einsum("...ij,...j->...i", A, x)
+
+
+def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a[..., :, None] * b[..., None, :]
+
+
+def _transpose(A: np.ndarray) -> np.ndarray:
+    return np.swapaxes(A, -1, -2)
+
+
+# --------------------------------------------------------------------------- points in 3D
+
+
+def point_world_inverse_depth(
+    x_anchor: np.ndarray, rho: np.ndarray, R_world_anchor: np.ndarray, t_world_anchor: np.ndarray
+) -> tuple[np.ndarray, Blocks]:
+    """`X_w = R_a x̂_a / ρ + t_a` and its Jacobians w.r.t. the anchor pose and ρ.
+
+    x_anchor: (M, 3) normalized anchor observation; rho (M,) in 1/m.
+    Returns X_w (M, 3) and blocks {"anchor": (M, 3, 6), "rho": (M, 3, 1)}.
+    """
+    p_anchor = x_anchor / rho[:, None]
+    p_world = _mv(R_world_anchor, p_anchor) + t_world_anchor
+    J_anchor = np.empty(p_world.shape + (6,))
+    J_anchor[..., :3] = -R_world_anchor @ so3.hat(p_anchor)
+    J_anchor[..., 3:] = np.eye(3)
+    J_rho = (-_mv(R_world_anchor, x_anchor) / (rho**2)[:, None])[..., None]
+    return p_world, {"anchor": J_anchor, "rho": J_rho}
+
+
+def point_world_on_plane(
+    x_anchor: np.ndarray,
+    n_world: np.ndarray,
+    d_world: np.ndarray,
+    B_plane: np.ndarray,
+    R_world_anchor: np.ndarray,
+    t_world_anchor: np.ndarray,
+) -> tuple[np.ndarray, Blocks, np.ndarray]:
+    """Co-planar (-w) point: the anchor ray `t_a + h R_a x̂_a` meets the plane (n, d).
+
+    `h = -(n·t_a + d) / (n·R_a x̂_a)` is the depth along x̂_a (paper Eq. 3 in the anchor
+    frame). B_plane (M, 3, 2) is the tangent basis of n. Returns X_w (M, 3), blocks
+    {"anchor": (M, 3, 6), "plane": (M, 3, 3)} and h (M,) (the caller rejects h <= 0).
+    """
+    ray = _mv(R_world_anchor, x_anchor)
+    s = np.sum(n_world * ray, axis=-1)
+    q = np.sum(n_world * t_world_anchor, axis=-1) + d_world
+    h = -q / s
+    p_world = t_world_anchor + h[:, None] * ray
+    dh_dray = (q / s**2)[:, None] * n_world
+    dray_dtheta = -R_world_anchor @ so3.hat(x_anchor)
+    J_anchor = np.empty(p_world.shape + (6,))
+    J_anchor[..., :3] = (h[:, None, None] * np.eye(3) + _outer(ray, dh_dray)) @ dray_dtheta
+    J_anchor[..., 3:] = np.eye(3) - _outer(ray, n_world / s[:, None])
+    dh_dn = -t_world_anchor / s[:, None] + (q / s**2)[:, None] * ray
+    J_plane = np.empty(p_world.shape + (3,))
+    J_plane[..., :2] = _outer(ray, dh_dn) @ B_plane
+    J_plane[..., 2] = ray * (-1.0 / s)[:, None]
+    return p_world, {"anchor": J_anchor, "plane": J_plane}, h
+
+
+# --------------------------------------------------------------------------- projection
+
+
+def point_reprojection(
+    camera: PinholeCamera,
+    p_world: np.ndarray,
+    J_world: np.ndarray,
+    R_world_camera: np.ndarray,
+    t_world_camera: np.ndarray,
+    offset_camera: np.ndarray,
+    uv_observed: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel reprojection residual `π_K(R_kᵀ (X_w - t_k) - o) - u_k`, (M, 2).
+
+    J_world (M, 3, D) is the Jacobian of X_w w.r.t. its own variables (chained through).
+    Returns the residual, the Jacobian (M, 2, D + 6) whose last 6 columns are the observing
+    pose's `(δθ, δt)`, and the depth (M,).
+    """
+    Rt = _transpose(R_world_camera)
+    p_rel = _mv(Rt, p_world - t_world_camera)
+    p_cam = p_rel - offset_camera
+    J_proj = camera.project_jacobian(p_cam)
+    residual = camera.project(p_cam) - uv_observed
+    J_pw = J_proj @ Rt
+    D = J_world.shape[2]
+    J = np.empty(residual.shape + (D + 6,))
+    J[..., :D] = J_pw @ J_world
+    J[..., D : D + 3] = J_proj @ so3.hat(p_rel)
+    J[..., D + 3 :] = -J_pw
+    return residual, J, p_cam[:, 2]
+
+
+# --------------------------------------------------------------------------- lines in 3D
+
+
+def line_world_orthonormal(U: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """World Plücker (m, v) of orthonormal lines and their (M, 3, 4) Jacobians w.r.t. `(δθ, δφ)`."""
+    c, s = np.cos(phi), np.sin(phi)
+    m = c[:, None] * U[..., 0]
+    v = s[:, None] * U[..., 1]
+    J_m = np.empty(m.shape + (4,))
+    J_v = np.empty(m.shape + (4,))
+    J_m[..., :3] = -c[:, None, None] * (U @ so3.hat(_E1))
+    J_v[..., :3] = -s[:, None, None] * (U @ so3.hat(_E2))
+    J_m[..., 3] = -s[:, None] * U[..., 0]
+    J_v[..., 3] = c[:, None] * U[..., 1]
+    return m, v, J_m, J_v
+
+
+def line_world_on_plane(
+    n_backprojection_anchor: np.ndarray,
+    n_world: np.ndarray,
+    d_world: np.ndarray,
+    B_plane: np.ndarray,
+    R_world_anchor: np.ndarray,
+    t_world_anchor: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, Blocks, Blocks, np.ndarray]:
+    """Co-planar (-w) line: the anchor back-projection plane `(n_l, 0)` meets (n, d).
+
+    In the anchor frame `v_a = n_l × n_a`, `m_a = -d_a n_l`; in the world with
+    `N = R_a n_l`: `v_w = N × n_w`, `m_w = -(d_w + n_w·t_a) N + t_a × v_w`.
+    Returns m_w, v_w (M, 3), their blocks {"anchor": (M, 3, 6), "plane": (M, 3, 3)} and
+    `|N × n_w|` (M,) (small when the back-projection plane is parallel to the plane).
+    """
+    N = _mv(R_world_anchor, n_backprojection_anchor)
+    v = np.cross(N, n_world)
+    q = np.sum(n_world * t_world_anchor, axis=-1) + d_world
+    m = -q[:, None] * N + np.cross(t_world_anchor, v)
+    dN_dtheta = -R_world_anchor @ so3.hat(n_backprojection_anchor)
+    hat_n, hat_N, hat_t = so3.hat(n_world), so3.hat(N), so3.hat(t_world_anchor)
+    dv_dN = -hat_n
+    dm_dN = -q[:, None, None] * np.eye(3) + hat_t @ dv_dN
+    dv_dn = hat_N
+    dm_dn = -_outer(N, t_world_anchor) + hat_t @ hat_N
+    J_v_anchor = np.zeros(v.shape + (6,))
+    J_v_anchor[..., :3] = dv_dN @ dN_dtheta
+    J_m_anchor = np.empty(v.shape + (6,))
+    J_m_anchor[..., :3] = dm_dN @ dN_dtheta
+    J_m_anchor[..., 3:] = -_outer(N, n_world) - so3.hat(v)
+    J_v_plane = np.zeros(v.shape + (3,))
+    J_v_plane[..., :2] = dv_dn @ B_plane
+    J_m_plane = np.empty(v.shape + (3,))
+    J_m_plane[..., :2] = dm_dn @ B_plane
+    J_m_plane[..., 2] = -N
+    return m, v, {"anchor": J_m_anchor, "plane": J_m_plane}, {"anchor": J_v_anchor, "plane": J_v_plane}, np.linalg.norm(v, axis=-1)
+
+
+def line_reprojection(
+    camera: PinholeCamera,
+    m_world: np.ndarray,
+    v_world: np.ndarray,
+    J_mv: np.ndarray,
+    R_world_camera: np.ndarray,
+    t_world_camera: np.ndarray,
+    offset_camera: np.ndarray,
+    x_start: np.ndarray,
+    x_end: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Endpoint-to-line residual (paper Eq. error-line) in pixels, (M, 2).
+
+    With `l = m_c` the image line of the world line in the observing camera (moved by the
+    camera offset: `m_o = m_c - o × v_c`), `r = f [x̂_s·l, x̂_e·l] / sqrt(l₁² + l₂²)`
+    for the observed normalized endpoints x̂_s, x̂_e (M, 3). J_mv (M, 6, D) is the Jacobian
+    of the stacked world (m, v) w.r.t. the line's own variables. Returns the residual and
+    the Jacobian (M, 2, D + 6), the last 6 columns for the observing pose.
+    """
+    Rt = _transpose(R_world_camera)
+    m_rel = _mv(Rt, m_world - np.cross(t_world_camera, v_world))
+    v_cam = _mv(Rt, v_world)
+    hat_o = so3.hat(offset_camera)
+    l = m_rel - np.cross(offset_camera, v_cam)
+    norm = np.sqrt(l[:, 0] ** 2 + l[:, 1] ** 2)
+    e = np.stack([np.sum(x_start * l, axis=-1), np.sum(x_end * l, axis=-1)], axis=-1)
+    f = camera.fx
+    residual = f * e / norm[:, None]
+    l12 = l.copy()
+    l12[:, 2] = 0.0
+    dr_dl = f * (np.stack([x_start, x_end], axis=1) / norm[:, None, None] - e[..., None] * l12[:, None, :] / (norm**3)[:, None, None])
+    dl_dmv = np.empty(l.shape + (6,))
+    dl_dmv[..., :3] = Rt
+    dl_dmv[..., 3:] = -Rt @ so3.hat(t_world_camera) - hat_o @ Rt
+    D = J_mv.shape[2]
+    J = np.empty(residual.shape + (D + 6,))
+    J[..., :D] = (dr_dl @ dl_dmv) @ J_mv
+    J[..., D : D + 3] = dr_dl @ (so3.hat(m_rel) - hat_o @ so3.hat(v_cam))
+    J[..., D + 3 :] = dr_dl @ (Rt @ so3.hat(v_world))
+    return residual, J
+
+
+# --------------------------------------------------------------------------- -r residuals
+
+
+def point_to_plane(
+    p_world: np.ndarray, J_world: Blocks, n_world: np.ndarray, d_world: np.ndarray, B_plane: np.ndarray
+) -> tuple[np.ndarray, Blocks]:
+    """Signed distance `n·X_w + d` (metres), (M, 1), with X_w's blocks chained and "plane"."""
+    residual = (np.sum(n_world * p_world, axis=-1) + d_world)[:, None]
+    blocks = {name: n_world[:, None, :] @ J for name, J in J_world.items()}
+    J_plane = np.empty((p_world.shape[0], 1, 3))
+    J_plane[:, 0, :2] = _mv(_transpose(B_plane), p_world)
+    J_plane[:, 0, 2] = 1.0
+    blocks["plane"] = J_plane
+    return residual, blocks
+
+
+def line_point_nearest_ray(
+    m_world: np.ndarray, v: np.ndarray, c_world: np.ndarray, w_world: np.ndarray
+) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """The point of the line (m, v) closest to the ray `c + λ w`.
+
+    Returns P (M, 3), its Jacobians {"m", "v", "c", "w"} (M, 3, 3) and the conditioning
+    `D = |v|²|w|² - (v·w)²` (M,) (zero when the ray is parallel to the line).
+    """
+    a = np.sum(v * v, axis=-1)
+    vxm = np.cross(v, m_world)
+    p0 = vxm / a[:, None]
+    r0 = p0 - c_world
+    b = np.sum(v * w_world, axis=-1)
+    cc = np.sum(w_world * w_world, axis=-1)
+    dd = np.sum(v * r0, axis=-1)
+    e = np.sum(w_world * r0, axis=-1)
+    D = a * cc - b**2
+    mu = (b * e - cc * dd) / D
+    P = p0 + mu[:, None] * v
+    inv_D = (1.0 / D)[:, None]
+    dmu_dv = (e[:, None] * w_world - cc[:, None] * r0 - mu[:, None] * (2.0 * cc[:, None] * v - 2.0 * b[:, None] * w_world)) * inv_D
+    dmu_dw = (e[:, None] * v + b[:, None] * r0 - 2.0 * dd[:, None] * w_world - mu[:, None] * (2.0 * a[:, None] * w_world - 2.0 * b[:, None] * v)) * inv_D
+    dmu_dr0 = (b[:, None] * w_world - cc[:, None] * v) * inv_D
+    dp0_dm = so3.hat(v) / a[:, None, None]
+    dp0_dv = -so3.hat(m_world) / a[:, None, None] - _outer(vxm, 2.0 * v) / (a**2)[:, None, None]
+    A = np.eye(3) + _outer(v, dmu_dr0)
+    J = {
+        "m": A @ dp0_dm,
+        "v": A @ dp0_dv + mu[:, None, None] * np.eye(3) + _outer(v, dmu_dv),
+        "c": -_outer(v, dmu_dr0),
+        "w": _outer(v, dmu_dw),
+    }
+    return P, J, D
+
+
+# --------------------------------------------------------------------------- poses
+
+
+def relative_pose_error(
+    R_i: np.ndarray, t_i: np.ndarray, R_j: np.ndarray, t_j: np.ndarray, R_ij: np.ndarray, t_ij: np.ndarray
+) -> tuple[np.ndarray, Blocks]:
+    """Odometry residual (M, 6): `[Log(R_ijᵀ R_iᵀ R_j), R_iᵀ (t_j - t_i) - t_ij]`.
+
+    (R_ij, t_ij) is the measured pose of j in i's frame. Blocks "i" and "j" (M, 6, 6).
+    """
+    Ri_t = _transpose(R_i)
+    E = _transpose(R_ij) @ Ri_t @ R_j
+    r_rot = so3.log(E)
+    dt = t_j - t_i
+    r_pos = _mv(Ri_t, dt) - t_ij
+    Jr_inv = so3.right_jacobian_inv(r_rot)
+    M = r_rot.shape[0]
+    J_i = np.zeros((M, 6, 6))
+    J_j = np.zeros((M, 6, 6))
+    J_j[:, :3, :3] = Jr_inv
+    J_i[:, :3, :3] = -Jr_inv @ _transpose(R_j) @ R_i
+    J_i[:, 3:, :3] = so3.hat(_mv(Ri_t, dt))
+    J_i[:, 3:, 3:] = -Ri_t
+    J_j[:, 3:, 3:] = Ri_t
+    return np.concatenate([r_rot, r_pos], axis=-1), {"i": J_i, "j": J_j}
+
+
+def pose_prior_error(R: np.ndarray, t: np.ndarray, R_prior: np.ndarray, t_prior: np.ndarray) -> tuple[np.ndarray, Blocks]:
+    """Prior residual (M, 6): `[Log(R_priorᵀ R), t - t_prior]`, block "pose"."""
+    r_rot = so3.log(_transpose(R_prior) @ R)
+    J = np.zeros((r_rot.shape[0], 6, 6))
+    J[:, :3, :3] = so3.right_jacobian_inv(r_rot)
+    J[:, 3:, 3:] = np.eye(3)
+    return np.concatenate([r_rot, t - t_prior], axis=-1), {"pose": J}

@@ -1,0 +1,627 @@
+"""One bundle-adjustment problem, built for any of the six variants from the same data.
+
+:class:`ProblemData` holds the landmarks, their observations, the plane assignment, the
+odometry and prior factors and the initial values. :func:`build_problem` picks the optimized
+variables and factor sets of a variant (DESIGN §3); :meth:`Problem.linearize` evaluates every
+factor type vectorized over its observations and returns the whitened residual vector and the
+sparse Jacobian, columns grouped as cameras | points | lines | planes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import numpy as np
+import scipy.sparse as sp
+
+from backend.geometry import line as line_geo
+from backend.geometry import plane as plane_geo
+from backend.geometry import so3
+from backend.geometry.camera import PinholeCamera
+from backend.geometry.se3 import Poses
+from backend.optim import factors
+
+VARIANTS: tuple[str, ...] = ("P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w")
+VariantName = Literal["P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w"]
+GROUPS: tuple[str, ...] = ("cameras", "points", "lines", "planes")
+
+# A ray or back-projection plane within this angle of parallel to its plane is rejected.
+MIN_PLANE_ANGLE_RAD = np.deg2rad(3.0)
+
+
+def parse_variant(name: str) -> tuple[bool, str]:
+    """`"PL-w"` -> (with_lines=True, mode="w"). Raises ValueError for unknown names."""
+    if name not in VARIANTS:
+        raise ValueError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)}")
+    kind, mode = name.split("-")
+    return kind == "PL", mode
+
+
+@dataclasses.dataclass(frozen=True)
+class Observations:
+    """Image observations of landmarks. Points: `uv` (M, 2) pixels. Lines: `uv` (M, 4) =
+    start and end pixels. `offset` (M, 3): observing camera centre in the left camera frame
+    (zero for the left image, `(b, 0, 0)` for the right image of a stereo pair)."""
+
+    landmark: np.ndarray
+    pose: np.ndarray
+    uv: np.ndarray
+    offset: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.landmark.shape[0])
+
+    def select(self, mask: np.ndarray) -> "Observations":
+        return Observations(self.landmark[mask], self.pose[mask], self.uv[mask], self.offset[mask])
+
+    @staticmethod
+    def empty(width: int) -> "Observations":
+        return Observations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, width)), np.zeros((0, 3)))
+
+
+@dataclasses.dataclass(frozen=True)
+class Odometry:
+    """Relative pose measurements: pose j in pose i's frame, with standard deviations
+    (radians per axis, metres per axis)."""
+
+    i: np.ndarray
+    j: np.ndarray
+    R_i_j: np.ndarray
+    t_i_j: np.ndarray
+    sigma_rot: float
+    sigma_pos: float
+
+
+@dataclasses.dataclass(frozen=True)
+class PosePrior:
+    index: np.ndarray
+    R_world_camera: np.ndarray
+    t_world_camera: np.ndarray
+    sigma_rot: float
+    sigma_pos: float
+
+
+@dataclasses.dataclass(frozen=True)
+class ProblemData:
+    """Everything a variant needs; landmark states are initial values.
+
+    Points: anchor pose index, anchor left pixel (its normalized ray defines the point),
+    initial inverse depth ρ (1/m) in the anchor, plane index (-1: non-planar).
+    Lines: anchor pose index, anchor left segment (start, end pixels), initial world line in
+    orthonormal form, plane index (-1: non-planar). Planes: initial world (n, d).
+    Observations include the anchors' own (each variant drops those that are identically
+    zero for it).
+    """
+
+    camera: PinholeCamera
+    poses: Poses
+    point_anchor: np.ndarray
+    point_anchor_uv: np.ndarray
+    point_rho: np.ndarray
+    point_plane: np.ndarray
+    point_obs: Observations
+    line_anchor: np.ndarray
+    line_anchor_uv: np.ndarray
+    line_U: np.ndarray
+    line_phi: np.ndarray
+    line_plane: np.ndarray
+    line_obs: Observations
+    plane_n: np.ndarray
+    plane_d: np.ndarray
+    odometry: Odometry | None
+    prior: PosePrior | None
+    sigma_px: float = 1.0
+    sigma_plane: float = 0.01
+    fixed_poses: np.ndarray | None = None  # bool (N,): held constant (no columns)
+
+
+@dataclasses.dataclass
+class State:
+    """Current estimate of all variables (also of those a variant does not optimize)."""
+
+    poses: Poses
+    rho: np.ndarray
+    line_U: np.ndarray
+    line_phi: np.ndarray
+    plane_n: np.ndarray
+    plane_d: np.ndarray
+
+    def copy(self) -> "State":
+        return State(self.poses.copy(), self.rho.copy(), self.line_U.copy(), self.line_phi.copy(), self.plane_n.copy(), self.plane_d.copy())
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """Column layout: start column per variable or -1 (not optimized), and group extents."""
+
+    pose_col: np.ndarray
+    point_col: np.ndarray
+    line_col: np.ndarray
+    plane_col: np.ndarray
+    group_start: dict[str, int]
+    group_size: dict[str, int]
+    group_items: dict[str, int]
+
+    @property
+    def n_params(self) -> int:
+        return int(sum(self.group_size.values()))
+
+    @property
+    def n_items(self) -> int:
+        return int(sum(self.group_items.values()))
+
+    @property
+    def n_landmark_params(self) -> int:
+        """Columns of the landmark variables (points, lines), eliminated by the Schur step."""
+        return self.group_size["points"] + self.group_size["lines"]
+
+
+@dataclasses.dataclass(frozen=True)
+class FactorBatch:
+    """One factor type's linearization: whitened (and robustly reweighted) residuals
+    (M, r), the Jacobian rows (M, r, D) over the concatenated slots, and the global column
+    of each of the D Jacobian columns (M, D), -1 where the variable is held fixed."""
+
+    name: str
+    residual: np.ndarray
+    jacobian: np.ndarray
+    cols: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class Linearization:
+    """All factor batches at one state, with the cost `Σ ½|r|²` per factor type (robust
+    factors report the Cauchy cost)."""
+
+    batches: tuple[FactorBatch, ...]
+    costs: dict[str, float]
+    n_params: int
+
+    @property
+    def cost(self) -> float:
+        return float(sum(self.costs.values()))
+
+    @property
+    def residual(self) -> np.ndarray:
+        """All whitened residuals, stacked (m,)."""
+        return np.concatenate([b.residual.ravel() for b in self.batches]) if self.batches else np.zeros(0)
+
+    @property
+    def jacobian(self) -> sp.csr_matrix:
+        """The sparse whitened Jacobian (m, n_params), rows in the order of :attr:`residual`."""
+        rows, cols, vals = [], [], []
+        offset = 0
+        for b in self.batches:
+            M, r, D = b.jacobian.shape
+            row = offset + np.arange(M * r).reshape(M, r, 1)
+            col = np.broadcast_to(b.cols[:, None, :], (M, r, D))
+            keep = col >= 0
+            rows.append(np.broadcast_to(row, (M, r, D))[keep])
+            cols.append(col[keep])
+            vals.append(b.jacobian[keep])
+            offset += M * r
+        if not rows:
+            return sp.csr_matrix((0, self.n_params))
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(offset, self.n_params))
+
+    def normal_equations(self, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Dense `H = JᵀJ` (n, n) and `g = -Jᵀr` (n,), summed per observation block.
+
+        `cache` (kept by the problem) stores the scatter indices, which depend only on the
+        problem's structure, between iterations.
+        """
+        n = self.n_params
+        H_flat = np.zeros(n * n)
+        g = np.zeros(n)
+        for k, b in enumerate(self.batches):
+            key = (k, b.name, b.cols.shape)
+            plan = None if cache is None else cache.get(key)
+            if plan is None:
+                plan = _ScatterPlan.build(b.cols, n)
+                if cache is not None:
+                    cache[key] = plan
+            JtJ = np.matmul(np.swapaxes(b.jacobian, 1, 2), b.jacobian)
+            H_flat[plan.h_index] += plan.h_sum @ JtJ.ravel()
+            Jtr = np.einsum("mrd,mr->md", b.jacobian, b.residual)
+            g[plan.g_index] -= plan.g_sum @ Jtr.ravel()
+        return H_flat.reshape(n, n), g
+
+
+@dataclasses.dataclass(frozen=True)
+class _ScatterPlan:
+    """Sums a batch's per-observation JᵀJ blocks (M, D, D) and Jᵀr (M, D) into the flat
+    Hessian and gradient: sparse 0/1 matrices map every entry to its unique target, so one
+    sparse mat-vec per iteration replaces a scatter. It depends only on the problem's
+    structure, so it is built once and cached."""
+
+    h_index: np.ndarray
+    h_sum: sp.csr_matrix
+    g_index: np.ndarray
+    g_sum: sp.csr_matrix
+
+    @staticmethod
+    def build(cols: np.ndarray, n: int) -> "_ScatterPlan":
+        M, D = cols.shape
+        valid = cols >= 0
+        pair = (valid[:, :, None] & valid[:, None, :]).ravel()
+        target = (cols[:, :, None] * n + cols[:, None, :]).ravel()[pair]
+        h_index, h_row = np.unique(target, return_inverse=True)
+        h_sum = sp.csr_matrix((np.ones(len(target)), (h_row, np.flatnonzero(pair))), shape=(len(h_index), M * D * D))
+        gt = cols.ravel()[valid.ravel()]
+        g_index, g_row = np.unique(gt, return_inverse=True)
+        g_sum = sp.csr_matrix((np.ones(len(gt)), (g_row, np.flatnonzero(valid.ravel()))), shape=(len(g_index), M * D))
+        return _ScatterPlan(h_index, h_sum, g_index, g_sum)
+
+
+class _Assembler:
+    """Collects whitened factor batches."""
+
+    def __init__(self, n_params: int, cache: dict) -> None:
+        self.batches: list[FactorBatch] = []
+        self.costs: dict[str, float] = {}
+        self.n_params = n_params
+        self.cache = cache
+
+    def add(self, name: str, residual: np.ndarray, jacobian: np.ndarray, slots: list[tuple[np.ndarray, int]], *, scale: float = 1.0, robust: float | None = None) -> None:
+        """residual (M, r) and Jacobian (M, r, D) whose columns are the concatenated `slots`
+        (first column (M,) of the variable or -1 if fixed, dimension); `scale` whitens;
+        `robust` is the Cauchy scale on the whitened residual norm (None: plain squares)."""
+        M, r = residual.shape
+        if M == 0:
+            return
+        res = residual * scale
+        sq = np.sum(res**2, axis=1)
+        if robust is not None:
+            # Cauchy kernel by iteratively reweighted least squares: √w = 1/√(1 + e²/c²).
+            w = scale / np.sqrt(1.0 + sq / robust**2)
+            self.costs[name] = self.costs.get(name, 0.0) + float(0.5 * robust**2 * np.sum(np.log1p(sq / robust**2)))
+            res = residual * w[:, None]
+            J = jacobian * w[:, None, None]
+        else:
+            self.costs[name] = self.costs.get(name, 0.0) + float(0.5 * np.sum(sq))
+            J = jacobian * scale if scale != 1.0 else jacobian
+        key = ("cols", len(self.batches), name, M)
+        cols = self.cache.get(key)
+        if cols is None:  # the columns depend only on the problem's structure
+            cols = self.cache[key] = np.concatenate([np.where(c[:, None] >= 0, c[:, None] + np.arange(dim), -1) for c, dim in slots], axis=1)
+        self.batches.append(FactorBatch(name, res, J, cols))
+
+    def build(self) -> Linearization:
+        return Linearization(tuple(self.batches), self.costs, self.n_params)
+
+
+@dataclasses.dataclass(frozen=True)
+class Problem:
+    """A variant's problem: which variables are optimized and which factors are active."""
+
+    data: ProblemData
+    variant: str
+    layout: Layout
+    point_obs_inv_depth: Observations   # -wo/-r points and non-planar points of -w
+    point_obs_planar: Observations      # -w points (anchor ray on a plane)
+    line_obs_free: Observations          # orthonormal lines
+    line_obs_planar: Observations        # -w lines (back-projection plane ∩ plane)
+    point_plane_pairs: np.ndarray        # -r: (K, 2) point index, plane index
+    line_plane_pairs: np.ndarray         # -r: (K, 2) line index, plane index
+    robust_px: float | None = None       # Cauchy scale on reprojection residuals (whitened), None = off
+    cache: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+
+    # ------------------------------------------------------------------ state
+
+    def initial_state(self) -> State:
+        d = self.data
+        return State(d.poses.copy(), d.point_rho.astype(float).copy(), d.line_U.copy(), d.line_phi.astype(float).copy(), d.plane_n.copy(), d.plane_d.astype(float).copy())
+
+    def retract(self, state: State, delta: np.ndarray) -> State:
+        """Apply a GN step (n_params,) to the optimized variables."""
+        L = self.layout
+        new = state.copy()
+        free = L.pose_col >= 0
+        if np.any(free):
+            step = delta[L.pose_col[free][:, None] + np.arange(6)]
+            moved = Poses(state.poses.R_world_camera[free], state.poses.t_world_camera[free]).retract(step)
+            new.poses.R_world_camera[free] = moved.R_world_camera
+            new.poses.t_world_camera[free] = moved.t_world_camera
+        sel = L.point_col >= 0
+        new.rho[sel] = state.rho[sel] + delta[L.point_col[sel]]
+        sel = L.line_col >= 0
+        if np.any(sel):
+            new.line_U[sel], new.line_phi[sel] = line_geo.retract(state.line_U[sel], state.line_phi[sel], delta[L.line_col[sel][:, None] + np.arange(4)])
+        sel = L.plane_col >= 0
+        if np.any(sel):
+            new.plane_n[sel], new.plane_d[sel] = plane_geo.retract(state.plane_n[sel], state.plane_d[sel], delta[L.plane_col[sel][:, None] + np.arange(3)])
+        return new
+
+    # ------------------------------------------------------------------ world geometry
+
+    def point_positions(self, state: State) -> np.ndarray:
+        """World positions (P, 3) of all points under this variant (NaN where undefined)."""
+        d = self.data
+        x_a = d.camera.normalize(d.point_anchor_uv)
+        R_a = state.poses.R_world_camera[d.point_anchor]
+        t_a = state.poses.t_world_camera[d.point_anchor]
+        p, _ = factors.point_world_inverse_depth(x_a, state.rho, R_a, t_a)
+        planar = self._planar_points()
+        if np.any(planar):
+            q = d.point_plane[planar]
+            n, dd = state.plane_n[q], state.plane_d[q]
+            pw, _, h = factors.point_world_on_plane(x_a[planar], n, dd, plane_geo.tangent_basis(n), R_a[planar], t_a[planar])
+            pw[h <= 0] = np.nan
+            p[planar] = pw
+        return p
+
+    def line_pluecker(self, state: State) -> tuple[np.ndarray, np.ndarray]:
+        """World Plücker (m, v) (L, 3) of all lines under this variant."""
+        d = self.data
+        m, v, _, _ = factors.line_world_orthonormal(state.line_U, state.line_phi)
+        planar = self._planar_lines()
+        if np.any(planar):
+            q = d.line_plane[planar]
+            n, dd = state.plane_n[q], state.plane_d[q]
+            a = d.line_anchor[planar]
+            n_l = self._backprojection_normals()[planar]
+            mw, vw, _, _, _ = factors.line_world_on_plane(n_l, n, dd, plane_geo.tangent_basis(n), state.poses.R_world_camera[a], state.poses.t_world_camera[a])
+            m, v = m.copy(), v.copy()
+            m[planar], v[planar] = mw, vw
+        return m, v
+
+    def _planar_points(self) -> np.ndarray:
+        return (self.layout.point_col < 0) & (self.data.point_plane >= 0) & self._uses_planes_w()
+
+    def _planar_lines(self) -> np.ndarray:
+        return (self.layout.line_col < 0) & (self.data.line_plane >= 0) & self._uses_planes_w()
+
+    def _uses_planes_w(self) -> bool:
+        return self.variant.endswith("-w")
+
+    def _normalized(self, key: str, uv: np.ndarray) -> np.ndarray:
+        """Normalized coordinates of fixed observations, computed once per problem."""
+        out = self.cache.get(("normalized", key))
+        if out is None:
+            out = self.cache[("normalized", key)] = self.data.camera.normalize(uv)
+        return out
+
+    def _backprojection_normals(self) -> np.ndarray:
+        d = self.data
+        xs = d.camera.normalize(d.line_anchor_uv[:, :2])
+        xe = d.camera.normalize(d.line_anchor_uv[:, 2:])
+        n = np.cross(xs, xe)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+    # ------------------------------------------------------------------ linearization
+
+    def linearize(self, state: State) -> Linearization:
+        """Whitened residuals and sparse Jacobian of all active factors at `state`."""
+        d = self.data
+        L = self.layout
+        cam = d.camera
+        poses = state.poses
+        asm = _Assembler(L.n_params, self.cache)
+        inv_px = 1.0 / d.sigma_px
+
+        R_all, t_all = poses.R_world_camera, poses.t_world_camera
+        x_anchor = self._normalized("point_anchor", d.point_anchor_uv)
+
+        # Points with an inverse-depth variable: world position per landmark, then per observation.
+        obs = self.point_obs_inv_depth
+        if len(obs):
+            pw_l, Jw_l = factors.point_world_inverse_depth(x_anchor, state.rho, R_all[d.point_anchor], t_all[d.point_anchor])
+            Jcat_l = np.concatenate([Jw_l["anchor"], Jw_l["rho"]], axis=2)
+            lm, k = obs.landmark, obs.pose
+            res, J, _ = factors.point_reprojection(cam, pw_l[lm], Jcat_l[lm], R_all[k], t_all[k], obs.offset, obs.uv)
+            asm.add("points", res, J, [(L.pose_col[d.point_anchor[lm]], 6), (L.point_col[lm], 1), (L.pose_col[k], 6)], scale=inv_px, robust=self.robust_px)
+
+        # Co-planar (-w) points: the anchor ray meets the plane.
+        obs = self.point_obs_planar
+        if len(obs):
+            sel = self._planar_points()
+            a, q = d.point_anchor[sel], d.point_plane[sel]
+            n = state.plane_n[q]
+            pw_s, Jw_s, _ = factors.point_world_on_plane(x_anchor[sel], n, state.plane_d[q], plane_geo.tangent_basis(n), R_all[a], t_all[a])
+            row = np.cumsum(sel) - 1  # landmark -> row among the planar ones
+            r = row[obs.landmark]
+            k = obs.pose
+            res, J, _ = factors.point_reprojection(cam, pw_s[r], np.concatenate([Jw_s["anchor"], Jw_s["plane"]], axis=2)[r], R_all[k], t_all[k], obs.offset, obs.uv)
+            asm.add("points", res, J, [(L.pose_col[a[r]], 6), (L.plane_col[q[r]], 3), (L.pose_col[k], 6)], scale=inv_px, robust=self.robust_px)
+
+        # Lines in orthonormal form.
+        obs = self.line_obs_free
+        if len(obs):
+            m, v, J_m, J_v = factors.line_world_orthonormal(state.line_U, state.line_phi)
+            J_mv = np.concatenate([J_m, J_v], axis=1)
+            lm, k = obs.landmark, obs.pose
+            x_s, x_e = self._normalized("line_free_s", obs.uv[:, :2]), self._normalized("line_free_e", obs.uv[:, 2:])
+            res, J = factors.line_reprojection(cam, m[lm], v[lm], J_mv[lm], R_all[k], t_all[k], obs.offset, x_s, x_e)
+            asm.add("lines", res, J, [(L.line_col[lm], 4), (L.pose_col[k], 6)], scale=inv_px, robust=self.robust_px)
+
+        # Co-planar (-w) lines.
+        obs = self.line_obs_planar
+        if len(obs):
+            sel = self._planar_lines()
+            a, q = d.line_anchor[sel], d.line_plane[sel]
+            n = state.plane_n[q]
+            m, v, J_m, J_v, _ = factors.line_world_on_plane(self._backprojection_normals()[sel], n, state.plane_d[q], plane_geo.tangent_basis(n), R_all[a], t_all[a])
+            J_mv = np.concatenate([np.concatenate([J_m["anchor"], J_m["plane"]], axis=2), np.concatenate([J_v["anchor"], J_v["plane"]], axis=2)], axis=1)
+            r = (np.cumsum(sel) - 1)[obs.landmark]
+            k = obs.pose
+            x_s, x_e = self._normalized("line_planar_s", obs.uv[:, :2]), self._normalized("line_planar_e", obs.uv[:, 2:])
+            res, J = factors.line_reprojection(cam, m[r], v[r], J_mv[r], R_all[k], t_all[k], obs.offset, x_s, x_e)
+            asm.add("lines", res, J, [(L.pose_col[a[r]], 6), (L.plane_col[q[r]], 3), (L.pose_col[k], 6)], scale=inv_px, robust=self.robust_px)
+
+        # -r: point-to-plane distances.
+        pairs = self.point_plane_pairs
+        if len(pairs):
+            i, q = pairs[:, 0], pairs[:, 1]
+            a = d.point_anchor[i]
+            pw, Jw = factors.point_world_inverse_depth(cam.normalize(d.point_anchor_uv[i]), state.rho[i], poses.R_world_camera[a], poses.t_world_camera[a])
+            n = state.plane_n[q]
+            res, J = factors.point_to_plane(pw, Jw, n, state.plane_d[q], plane_geo.tangent_basis(n))
+            asm.add("point_plane", res, np.concatenate([J["anchor"], J["rho"], J["plane"]], axis=2), [(L.pose_col[a], 6), (L.point_col[i], 1), (L.plane_col[q], 3)], scale=1.0 / d.sigma_plane)
+
+        # -r: line-to-plane distances of the line points nearest the anchor endpoint rays.
+        pairs = self.line_plane_pairs
+        if len(pairs):
+            res, J, cols = self._line_plane_residuals(state, pairs)
+            asm.add("line_plane", res, J, cols, scale=1.0 / d.sigma_plane)
+
+        # Odometry and prior.
+        od = d.odometry
+        if od is not None and len(od.i):
+            res, J = factors.relative_pose_error(poses.R_world_camera[od.i], poses.t_world_camera[od.i], poses.R_world_camera[od.j], poses.t_world_camera[od.j], od.R_i_j, od.t_i_j)
+            scale = np.array([1 / od.sigma_rot] * 3 + [1 / od.sigma_pos] * 3)
+            asm.add("odometry", res * scale, np.concatenate([J["i"], J["j"]], axis=2) * scale[:, None], [(L.pose_col[od.i], 6), (L.pose_col[od.j], 6)])
+        pr = d.prior
+        if pr is not None and len(pr.index):
+            res, J = factors.pose_prior_error(poses.R_world_camera[pr.index], poses.t_world_camera[pr.index], pr.R_world_camera, pr.t_world_camera)
+            scale = np.array([1 / pr.sigma_rot] * 3 + [1 / pr.sigma_pos] * 3)
+            asm.add("prior", res * scale, J["pose"] * scale[:, None], [(L.pose_col[pr.index], 6)])
+        return asm.build()
+
+    def _line_plane_residuals(self, state: State, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, int]]]:
+        d = self.data
+        L = self.layout
+        i, q = pairs[:, 0], pairs[:, 1]
+        a = d.line_anchor[i]
+        R_a, t_a = state.poses.R_world_camera[a], state.poses.t_world_camera[a]
+        m, v, J_m, J_v = factors.line_world_orthonormal(state.line_U[i], state.line_phi[i])
+        n = state.plane_n[q]
+        B = plane_geo.tangent_basis(n)
+        res_cols, J_anchor, J_line, J_plane = [], [], [], []
+        for k in (0, 2):  # start and end endpoint of the anchor segment
+            x = d.camera.normalize(d.line_anchor_uv[i, k : k + 2])
+            w = np.einsum("mij,mj->mi", R_a, x)
+            P, JP, _ = factors.line_point_nearest_ray(m, v, t_a, w)
+            res_cols.append(np.sum(n * P, axis=-1) + state.plane_d[q])
+            nT = n[:, None, :]
+            Ja = np.empty((len(i), 1, 6))
+            Ja[..., :3] = nT @ JP["w"] @ (-R_a @ so3.hat(x))
+            Ja[..., 3:] = nT @ JP["c"]
+            J_anchor.append(Ja)
+            J_line.append(nT @ (JP["m"] @ J_m + JP["v"] @ J_v))
+            Jp = np.empty((len(i), 1, 3))
+            Jp[:, 0, :2] = np.einsum("mi,mij->mj", P, B)
+            Jp[:, 0, 2] = 1.0
+            J_plane.append(Jp)
+        res = np.stack(res_cols, axis=1)
+        J = np.concatenate([np.concatenate(J_anchor, axis=1), np.concatenate(J_line, axis=1), np.concatenate(J_plane, axis=1)], axis=2)
+        return res, J, [(L.pose_col[a], 6), (L.line_col[i], 4), (L.plane_col[q], 3)]
+
+
+def _point_plane_valid(data: ProblemData) -> np.ndarray:
+    """Points whose anchor ray meets their plane at a usable angle and in front (DESIGN §3)."""
+    ok = data.point_plane >= 0
+    if not np.any(ok):
+        return ok
+    idx = np.flatnonzero(ok)
+    a = data.point_anchor[idx]
+    ray = np.einsum("mij,mj->mi", data.poses.R_world_camera[a], data.camera.normalize(data.point_anchor_uv[idx]))
+    ray /= np.linalg.norm(ray, axis=-1, keepdims=True)
+    n = data.plane_n[data.point_plane[idx]]
+    s = np.sum(n * ray, axis=-1)
+    q = np.sum(n * data.poses.t_world_camera[a], axis=-1) + data.plane_d[data.point_plane[idx]]
+    good = (np.abs(s) > np.sin(MIN_PLANE_ANGLE_RAD)) & (-q / np.where(s == 0, 1, s) > 0)
+    ok[idx] = good
+    return ok
+
+
+def _line_plane_valid(data: ProblemData) -> np.ndarray:
+    """Lines whose anchor back-projection plane is not near parallel to their plane."""
+    ok = data.line_plane >= 0
+    if not np.any(ok):
+        return ok
+    idx = np.flatnonzero(ok)
+    xs = data.camera.normalize(data.line_anchor_uv[idx, :2])
+    xe = data.camera.normalize(data.line_anchor_uv[idx, 2:])
+    n_l = np.cross(xs, xe)
+    n_l /= np.linalg.norm(n_l, axis=-1, keepdims=True)
+    N = np.einsum("mij,mj->mi", data.poses.R_world_camera[data.line_anchor[idx]], n_l)
+    s = np.linalg.norm(np.cross(N, data.plane_n[data.line_plane[idx]]), axis=-1)
+    ok[idx] = s > np.sin(MIN_PLANE_ANGLE_RAD)
+    return ok
+
+
+def build_problem(data: ProblemData, variant: str, *, robust_px: float | None = None) -> Problem:
+    """Choose the variables and factors of `variant` (DESIGN §3) for `data`.
+
+    -wo: every point is an inverse depth, every line orthonormal, no planes. -r: as -wo plus
+    point/line-to-plane residuals and one 3-DoF variable per used plane. -w: features assigned
+    to a plane have no variable (their plane and anchor define them), the others stay as in
+    -wo. Features whose geometry with their plane is degenerate are treated as non-planar.
+    """
+    with_lines, mode = parse_variant(variant)
+    n_poses = len(data.poses)
+    n_points = len(data.point_anchor)
+    n_lines = len(data.line_anchor) if with_lines else 0
+    n_planes = len(data.plane_n)
+    fixed = np.zeros(n_poses, bool) if data.fixed_poses is None else np.asarray(data.fixed_poses, bool)
+
+    point_planar = _point_plane_valid(data) if mode != "wo" else np.zeros(n_points, bool)
+    line_planar = _line_plane_valid(data)[:n_lines] if (mode != "wo" and with_lines) else np.zeros(n_lines, bool)
+
+    point_var = np.ones(n_points, bool) if mode != "w" else ~point_planar
+    line_var = np.ones(n_lines, bool) if mode != "w" else ~line_planar
+    used_planes = np.zeros(n_planes, bool)
+    used_planes[data.point_plane[point_planar]] = True
+    if with_lines:
+        used_planes[data.line_plane[:n_lines][line_planar]] = True
+
+    # Column layout: cameras | points | lines | planes.
+    pose_col = np.full(n_poses, -1)
+    pose_col[~fixed] = 6 * np.arange(int(np.sum(~fixed)))
+    start = {"cameras": 0}
+    size = {"cameras": 6 * int(np.sum(~fixed))}
+    point_col = np.full(n_points, -1)
+    start["points"] = size["cameras"]
+    point_col[point_var] = start["points"] + np.arange(int(np.sum(point_var)))
+    size["points"] = int(np.sum(point_var))
+    line_col = np.full(len(data.line_anchor), -1)
+    start["lines"] = start["points"] + size["points"]
+    line_col[:n_lines][line_var] = start["lines"] + 4 * np.arange(int(np.sum(line_var)))
+    size["lines"] = 4 * int(np.sum(line_var))
+    plane_col = np.full(n_planes, -1)
+    start["planes"] = start["lines"] + size["lines"]
+    plane_col[used_planes] = start["planes"] + 3 * np.arange(int(np.sum(used_planes)))
+    size["planes"] = 3 * int(np.sum(used_planes))
+    items = {"cameras": int(np.sum(~fixed)), "points": size["points"], "lines": size["lines"] // 4, "planes": size["planes"] // 3}
+    layout = Layout(pose_col, point_col, line_col, plane_col, start, size, items)
+
+    # Observations per factor type. A point's own left anchor observation is identically
+    # satisfied by construction (its ray defines it) and is dropped.
+    po = data.point_obs
+    is_anchor_left = (po.pose == data.point_anchor[po.landmark]) & np.all(po.offset == 0, axis=1)
+    po = po.select(~is_anchor_left)
+    planar_obs = point_planar[po.landmark] & ~point_var[po.landmark]
+    lo = data.line_obs.select(data.line_obs.landmark < n_lines) if with_lines else Observations.empty(4)
+    lplanar_obs = line_planar[lo.landmark] & ~line_var[lo.landmark] if len(lo) else np.zeros(0, bool)
+    lo_planar = lo.select(lplanar_obs)
+    # A -w line's own left anchor segment spans its back-projection plane: identically zero.
+    anchor_left = (lo_planar.pose == data.line_anchor[lo_planar.landmark]) & np.all(lo_planar.offset == 0, axis=1)
+    lo_planar = lo_planar.select(~anchor_left)
+
+    if mode == "r":
+        pp = np.flatnonzero(point_planar)
+        point_pairs = np.stack([pp, data.point_plane[pp]], axis=1)
+        lp = np.flatnonzero(line_planar)
+        line_pairs = np.stack([lp, data.line_plane[lp]], axis=1)
+    else:
+        point_pairs = np.zeros((0, 2), int)
+        line_pairs = np.zeros((0, 2), int)
+
+    def grouped(obs: Observations, anchor: np.ndarray, plane: np.ndarray) -> Observations:
+        """Order observations so those with the same variables are adjacent (their Hessian
+        blocks are summed before the scatter)."""
+        return obs.select(np.lexsort((obs.landmark, plane[obs.landmark], obs.pose, anchor[obs.landmark])))
+
+    return Problem(
+        data=data,
+        variant=variant,
+        layout=layout,
+        point_obs_inv_depth=po.select(~planar_obs),
+        point_obs_planar=grouped(po.select(planar_obs), data.point_anchor, data.point_plane),
+        line_obs_free=lo.select(~lplanar_obs) if len(lo) else lo,
+        line_obs_planar=grouped(lo_planar, data.line_anchor, data.line_plane),
+        point_plane_pairs=point_pairs,
+        line_plane_pairs=line_pairs,
+        robust_px=robust_px,
+    )

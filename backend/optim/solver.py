@@ -1,0 +1,166 @@
+"""Gauss-Newton on a :class:`~backend.optim.problem.Problem` with the Schur complement.
+
+The landmark variables (inverse depths, orthonormal lines) form a block-diagonal part of
+H = JᵀJ (no factor joins two landmarks); they are eliminated first and the reduced system
+over cameras and planes is solved by dense Cholesky. This is the structure the paper's
+efficiency argument rests on: -w has no landmark variables and a smaller reduced system.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import scipy.linalg
+
+from backend.optim.problem import Layout, Linearization, Problem, State
+
+
+@dataclasses.dataclass(frozen=True)
+class SolveReport:
+    """What one optimization did. Times in milliseconds (wall clock)."""
+
+    variant: str
+    iterations: int
+    initial_cost: float
+    final_cost: float
+    costs: tuple[float, ...]
+    time_ms: float
+    linearize_ms: float
+    solve_ms: float
+    other_ms: float
+    converged: bool
+    items: int
+    params: int
+
+
+def _dense_solve(S: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve S x = b for symmetric positive (semi)definite S; least squares if singular."""
+    if S.shape[0] == 0:
+        return np.zeros(0)
+    try:
+        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(S, lower=False, check_finite=False), b, check_finite=False)
+    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+        return np.linalg.lstsq(S, b, rcond=None)[0]
+
+
+def _invert_blocks(blocks: np.ndarray) -> np.ndarray:
+    """Inverse of a stack of small symmetric blocks (pseudo-inverse where singular)."""
+    try:
+        return np.linalg.inv(blocks)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(blocks, hermitian=True)
+
+
+def solve_schur(H: np.ndarray, g: np.ndarray, layout: Layout) -> np.ndarray:
+    """Solve `H δ = g` by eliminating the landmark columns (points: 1×1 blocks, lines: 4×4
+    blocks, block-diagonal in H) and solving the reduced camera|plane system by Cholesky."""
+    n = layout.n_params
+    lo = layout.group_start["points"]
+    mid = layout.group_start["lines"]
+    hi = layout.group_start["planes"]
+    reduced = np.r_[0:lo, hi:n]
+    delta = np.zeros(n)
+    H_rr = H[np.ix_(reduced, reduced)]
+    g_r = g[reduced]
+    if hi == lo:
+        delta[reduced] = _dense_solve(H_rr, g_r)
+        return delta
+    H_rl = H[reduced, lo:hi]
+    g_l = g[lo:hi]
+    # W = H_rl H_ll⁻¹ and H_ll⁻¹ g_l, blockwise.
+    W = np.empty_like(H_rl)
+    Hinv_g = np.empty(hi - lo)
+    n_pts = mid - lo
+    if n_pts:
+        d_inv = 1.0 / np.diagonal(H)[lo:mid]
+        W[:, :n_pts] = H_rl[:, :n_pts] * d_inv
+        Hinv_g[:n_pts] = g_l[:n_pts] * d_inv
+    n_lines = (hi - mid) // 4
+    if n_lines:
+        blocks = H[mid:hi, mid:hi].reshape(n_lines, 4, n_lines, 4)[np.arange(n_lines), :, np.arange(n_lines), :]
+        inv = _invert_blocks(blocks)
+        W[:, n_pts:] = np.einsum("rli,lij->rlj", H_rl[:, n_pts:].reshape(-1, n_lines, 4), inv).reshape(len(reduced), -1)
+        Hinv_g[n_pts:] = np.einsum("lij,lj->li", inv, g_l[n_pts:].reshape(n_lines, 4)).ravel()
+    S = H_rr - W @ H_rl.T
+    delta_r = _dense_solve(S, g_r - H_rl @ Hinv_g)
+    delta[reduced] = delta_r
+    # δ_l = H_ll⁻¹ (g_l - H_lr δ_r) = H_ll⁻¹ g_l - Wᵀ δ_r (H_ll⁻¹ is symmetric).
+    delta[lo:hi] = Hinv_g - W.T @ delta_r
+    return delta
+
+
+def solve_normal_equations(lin: Linearization, layout: Layout, *, cache: dict | None = None) -> np.ndarray:
+    """Gauss-Newton step δ (n_params,) solving `JᵀJ δ = -Jᵀ r` by the Schur complement."""
+    H, g = lin.normal_equations(cache)
+    return solve_schur(H, g, layout)
+
+
+def gauss_newton(
+    problem: Problem,
+    state: State | None = None,
+    *,
+    max_iterations: int = 10,
+    relative_tolerance: float = 1e-10,
+    step_tolerance: float = 1e-10,
+    max_step_halvings: int = 4,
+) -> tuple[State, SolveReport]:
+    """Gauss-Newton with a backtracking step length, at most `max_iterations` steps.
+
+    Each iteration solves the Gauss-Newton normal equations once; if the full step raises
+    the cost it is halved (at most `max_step_halvings` times, the last is taken anyway).
+
+    Stops early when the cost decreases by less than `relative_tolerance` (relative) or the
+    largest step component is below `step_tolerance`. Returns the final state and a report
+    whose times split the loop into linearization (residuals, Jacobians, assembly), solve
+    (normal equations, Schur complement, Cholesky) and other (retraction, bookkeeping).
+    """
+    t_start = time.perf_counter()
+    state = problem.initial_state() if state is None else state
+    t_lin = t_solve = 0.0
+    t0 = time.perf_counter()
+    lin = problem.linearize(state)
+    t_lin += time.perf_counter() - t0
+    costs = [lin.cost]
+    iterations = 0
+    converged = False
+    for _ in range(max_iterations):
+        t0 = time.perf_counter()
+        delta = solve_normal_equations(lin, problem.layout, cache=problem.cache)
+        t_solve += time.perf_counter() - t0
+        if not np.all(np.isfinite(delta)):
+            break
+        # Gauss-Newton step with backtracking: halve the step while the cost rises. Far
+        # from the optimum the nearly unobservable monocular scale makes full steps overshoot.
+        step = 1.0
+        for _halving in range(max_step_halvings + 1):
+            candidate = problem.retract(state, step * delta)
+            t0 = time.perf_counter()
+            lin_candidate = problem.linearize(candidate)
+            t_lin += time.perf_counter() - t0
+            if np.isfinite(lin_candidate.cost) and lin_candidate.cost <= costs[-1]:
+                break
+            step *= 0.5
+        state, lin = candidate, lin_candidate
+        iterations += 1
+        costs.append(lin.cost)
+        if abs(costs[-2] - costs[-1]) <= relative_tolerance * max(costs[-2], 1e-300) or np.max(np.abs(step * delta), initial=0.0) < step_tolerance:
+            converged = True
+            break
+    total = time.perf_counter() - t_start
+    report = SolveReport(
+        variant=problem.variant,
+        iterations=iterations,
+        initial_cost=costs[0],
+        final_cost=costs[-1],
+        costs=tuple(costs),
+        time_ms=1e3 * total,
+        linearize_ms=1e3 * t_lin,
+        solve_ms=1e3 * t_solve,
+        other_ms=1e3 * (total - t_lin - t_solve),
+        converged=converged,
+        items=problem.layout.n_items,
+        params=problem.layout.n_params,
+    )
+    return state, report

@@ -1,0 +1,1 @@
+"""The viser scene and controls (reads snapshots, calls the engine). Built in a later issue."""
