@@ -309,6 +309,11 @@ class Problem:
 
     # ------------------------------------------------------------------ state
 
+    def prepare(self) -> None:
+        """Build the structure-only caches (column maps, scatter plans) once, so that a
+        timed optimization measures the numeric work only (like a solver's symbolic phase)."""
+        self.linearize(self.initial_state()).normal_equations(self.cache)
+
     def initial_state(self) -> State:
         d = self.data
         return State(d.poses.copy(), d.point_rho.astype(float).copy(), d.line_U.copy(), d.line_phi.astype(float).copy(), d.plane_n.copy(), d.plane_d.astype(float).copy())

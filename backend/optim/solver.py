@@ -22,6 +22,7 @@ class SolveReport:
     """What one optimization did. Times in milliseconds (wall clock)."""
 
     variant: str
+    method: str
     iterations: int
     initial_cost: float
     final_cost: float
@@ -97,25 +98,35 @@ def solve_normal_equations(lin: Linearization, layout: Layout, *, cache: dict | 
     return solve_schur(H, g, layout)
 
 
-def gauss_newton(
+METHODS: tuple[str, ...] = ("gn", "lm")
+
+
+def optimize(
     problem: Problem,
     state: State | None = None,
     *,
+    method: str = "gn",
     max_iterations: int = 10,
     relative_tolerance: float = 1e-10,
     step_tolerance: float = 1e-10,
     max_step_halvings: int = 4,
+    initial_lambda: float = 1e-4,
 ) -> tuple[State, SolveReport]:
-    """Gauss-Newton with a backtracking step length, at most `max_iterations` steps.
+    """Minimize the problem's cost from `state` (its initial values by default).
 
-    Each iteration solves the Gauss-Newton normal equations once; if the full step raises
-    the cost it is halved (at most `max_step_halvings` times, the last is taken anyway).
+    `method="gn"`: Gauss-Newton; if a full step raises the cost it is halved, at most
+    `max_step_halvings` times (the last is taken anyway). `method="lm"`: Levenberg-Marquardt
+    with Marquardt's scaling `H + λ diag(H)`, λ divided by 10 after a successful step and
+    multiplied by 10 (re-solving the same linearization) after a failed one.
 
-    Stops early when the cost decreases by less than `relative_tolerance` (relative) or the
-    largest step component is below `step_tolerance`. Returns the final state and a report
-    whose times split the loop into linearization (residuals, Jacobians, assembly), solve
-    (normal equations, Schur complement, Cholesky) and other (retraction, bookkeeping).
+    An iteration is one linearization and its accepted step; at most `max_iterations`. Stops
+    early when the cost decreases by less than `relative_tolerance` (relative) or the largest
+    step component is below `step_tolerance`. The report splits the loop's wall time into
+    linearization (residuals, Jacobians), solve (normal equations, Schur complement,
+    Cholesky) and other (retraction, bookkeeping).
     """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     t_start = time.perf_counter()
     state = problem.initial_state() if state is None else state
     t_lin = t_solve = 0.0
@@ -125,23 +136,37 @@ def gauss_newton(
     costs = [lin.cost]
     iterations = 0
     converged = False
+    lam = initial_lambda
     for _ in range(max_iterations):
         t0 = time.perf_counter()
-        delta = solve_normal_equations(lin, problem.layout, cache=problem.cache)
+        H, g = lin.normal_equations(problem.cache)
         t_solve += time.perf_counter() - t0
-        if not np.all(np.isfinite(delta)):
-            break
-        # Gauss-Newton step with backtracking: halve the step while the cost rises. Far
-        # from the optimum the nearly unobservable monocular scale makes full steps overshoot.
         step = 1.0
-        for _halving in range(max_step_halvings + 1):
+        for attempt in range(max_step_halvings + 1 if method == "gn" else 12):
+            t0 = time.perf_counter()
+            if method == "lm":
+                H_damped = H.copy()
+                H_damped[np.diag_indices_from(H_damped)] *= 1.0 + lam
+                delta = solve_schur(H_damped, g, problem.layout)
+            elif attempt == 0:
+                delta = solve_schur(H, g, problem.layout)
+            t_solve += time.perf_counter() - t0
+            if not np.all(np.isfinite(delta)):
+                delta = np.zeros_like(delta)
             candidate = problem.retract(state, step * delta)
             t0 = time.perf_counter()
             lin_candidate = problem.linearize(candidate)
             t_lin += time.perf_counter() - t0
             if np.isfinite(lin_candidate.cost) and lin_candidate.cost <= costs[-1]:
+                lam = max(lam / 10.0, 1e-10)
                 break
-            step *= 0.5
+            if method == "gn":
+                step *= 0.5
+            else:
+                lam *= 10.0
+        else:
+            if method == "lm":  # no damping helped: keep the current state
+                candidate, lin_candidate, delta, step = state, lin, np.zeros_like(delta), 0.0
         state, lin = candidate, lin_candidate
         iterations += 1
         costs.append(lin.cost)
@@ -151,6 +176,7 @@ def gauss_newton(
     total = time.perf_counter() - t_start
     report = SolveReport(
         variant=problem.variant,
+        method=method,
         iterations=iterations,
         initial_cost=costs[0],
         final_cost=costs[-1],
@@ -164,3 +190,8 @@ def gauss_newton(
         params=problem.layout.n_params,
     )
     return state, report
+
+
+def gauss_newton(problem: Problem, state: State | None = None, **options) -> tuple[State, SolveReport]:
+    """:func:`optimize` with `method="gn"` (the Monte-Carlo study's solver)."""
+    return optimize(problem, state, method="gn", **options)

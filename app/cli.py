@@ -1,0 +1,50 @@
+"""The `coplanar` command line (DESIGN §7)."""
+
+from __future__ import annotations
+
+import os
+
+# The solver's dense factorizations are small (a few hundred columns): OpenBLAS threads
+# cost more than they gain there. Must be set before numpy loads.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+
+from app import sim_command  # noqa: E402
+
+EXIT_BAD_INPUT = 2
+
+
+class UsageError(Exception):
+    """Expected bad input: reported as one line, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line instead of usage + message
+        raise UsageError(f"{self.prog}: {message}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="coplanar", description="Co-planar parametrization SLAM debugger and studies.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sim_command.add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        return int(args.run(args) or 0)
+    except UsageError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
