@@ -88,6 +88,13 @@ def point_world_on_plane(
 # --------------------------------------------------------------------------- projection
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`a × b` over the last axis (faster than np.cross for stacks of 3-vectors)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def point_reprojection(
     camera: PinholeCamera,
     p_world: np.ndarray,
@@ -103,16 +110,23 @@ def point_reprojection(
     Returns the residual, the Jacobian (M, 2, D + 6) whose last 6 columns are the observing
     pose's `(δθ, δt)`, and the depth (M,).
     """
-    Rt = _transpose(R_world_camera)
-    p_rel = _mv(Rt, p_world - t_world_camera)
+    d = p_world - t_world_camera
+    # p_rel = R_kᵀ d, written out: row j of R_kᵀ is column j of R_k.
+    p_rel = (d[:, None, :] @ R_world_camera)[:, 0, :]
     p_cam = p_rel - offset_camera
-    J_proj = camera.project_jacobian(p_cam)
-    residual = camera.project(p_cam) - uv_observed
-    J_pw = J_proj @ Rt
+    inv_z = 1.0 / p_cam[:, 2]
+    x_z, y_z = p_cam[:, 0] * inv_z, p_cam[:, 1] * inv_z
+    residual = np.stack([camera.fx * x_z + camera.cx, camera.fy * y_z + camera.cy], axis=-1) - uv_observed
+    # Rows of ∂π/∂p_cam: (fx/z) (1, 0, -x/z) and (fy/z) (0, 1, -y/z).
+    g0 = np.stack([camera.fx * inv_z, np.zeros_like(inv_z), -camera.fx * x_z * inv_z], axis=-1)
+    g1 = np.stack([np.zeros_like(inv_z), camera.fy * inv_z, -camera.fy * y_z * inv_z], axis=-1)
+    G = np.stack([g0, g1], axis=1)  # (M, 2, 3)
+    J_pw = G @ _transpose(R_world_camera)  # ∂/∂X_w = G R_kᵀ
     D = J_world.shape[2]
-    J = np.empty(residual.shape + (D + 6,))
+    J = np.empty((p_world.shape[0], 2, D + 6))
     J[..., :D] = J_pw @ J_world
-    J[..., D : D + 3] = J_proj @ so3.hat(p_rel)
+    J[:, 0, D : D + 3] = _cross(g0, p_rel)  # rows of G [p_rel]_×
+    J[:, 1, D : D + 3] = _cross(g1, p_rel)
     J[..., D + 3 :] = -J_pw
     return residual, J, p_cam[:, 2]
 
@@ -191,26 +205,29 @@ def line_reprojection(
     of the stacked world (m, v) w.r.t. the line's own variables. Returns the residual and
     the Jacobian (M, 2, D + 6), the last 6 columns for the observing pose.
     """
-    Rt = _transpose(R_world_camera)
-    m_rel = _mv(Rt, m_world - np.cross(t_world_camera, v_world))
-    v_cam = _mv(Rt, v_world)
-    hat_o = so3.hat(offset_camera)
-    l = m_rel - np.cross(offset_camera, v_cam)
-    norm = np.sqrt(l[:, 0] ** 2 + l[:, 1] ** 2)
-    e = np.stack([np.sum(x_start * l, axis=-1), np.sum(x_end * l, axis=-1)], axis=-1)
+    mv = np.stack([m_world - _cross(t_world_camera, v_world), v_world], axis=1) @ R_world_camera
+    m_rel, v_cam = mv[:, 0], mv[:, 1]
+    l = m_rel - _cross(offset_camera, v_cam)
+    inv_norm = 1.0 / np.sqrt(l[:, 0] ** 2 + l[:, 1] ** 2)
+    x = np.stack([x_start, x_end], axis=1)  # (M, 2, 3)
+    e = (x @ l[:, :, None])[..., 0]
     f = camera.fx
-    residual = f * e / norm[:, None]
+    residual = f * e * inv_norm[:, None]
     l12 = l.copy()
     l12[:, 2] = 0.0
-    dr_dl = f * (np.stack([x_start, x_end], axis=1) / norm[:, None, None] - e[..., None] * l12[:, None, :] / (norm**3)[:, None, None])
-    dl_dmv = np.empty(l.shape + (6,))
-    dl_dmv[..., :3] = Rt
-    dl_dmv[..., 3:] = -Rt @ so3.hat(t_world_camera) - hat_o @ Rt
+    # Rows of ∂r/∂l (M, 2, 3).
+    dr_dl = f * (x * inv_norm[:, None, None] - (e * inv_norm[:, None] ** 3)[..., None] * l12[:, None, :])
+    # ∂r/∂m_w = dr_dl R_kᵀ; ∂r/∂v_w = -(dr_dl R_kᵀ)[t]_× - (dr_dl [o]_×) R_kᵀ; row·[a]_× = row × a.
+    Rt = _transpose(R_world_camera)
+    q = dr_dl @ Rt
+    o = offset_camera[:, None, :]
+    dr_dmv = np.concatenate([q, -_cross(q, t_world_camera[:, None, :]) - _cross(dr_dl, o) @ Rt], axis=2)
     D = J_mv.shape[2]
     J = np.empty(residual.shape + (D + 6,))
-    J[..., :D] = (dr_dl @ dl_dmv) @ J_mv
-    J[..., D : D + 3] = dr_dl @ (so3.hat(m_rel) - hat_o @ so3.hat(v_cam))
-    J[..., D + 3 :] = dr_dl @ (Rt @ so3.hat(v_world))
+    J[..., :D] = dr_dmv @ J_mv
+    # ∂l/∂δθ = [m_rel]_× - [o]_× [v_cam]_×; ∂l/∂δt = R_kᵀ [v_w]_×.
+    J[..., D : D + 3] = _cross(dr_dl, m_rel[:, None, :]) - _cross(_cross(dr_dl, o), v_cam[:, None, :])
+    J[..., D + 3 :] = _cross(q, v_world[:, None, :])
     return residual, J
 
 

@@ -221,7 +221,13 @@ class Linearization:
                 plan = _ScatterPlan.build(b.cols, n)
                 if cache is not None:
                     cache[key] = plan
-            JtJ = np.matmul(np.swapaxes(b.jacobian, 1, 2), b.jacobian)
+            if plan.run_starts is not None:
+                # Few distinct variable tuples: one small GEMM per run of observations.
+                J2 = b.jacobian.reshape(-1, b.jacobian.shape[2])
+                r = b.jacobian.shape[1]
+                JtJ = np.stack([J2[r * s0 : r * s1].T @ J2[r * s0 : r * s1] for s0, s1 in zip(plan.run_starts[:-1], plan.run_starts[1:])])
+            else:
+                JtJ = np.matmul(np.swapaxes(b.jacobian, 1, 2), b.jacobian)
             H_flat[plan.h_index] += plan.h_sum @ JtJ.ravel()
             Jtr = np.einsum("mrd,mr->md", b.jacobian, b.residual)
             g[plan.g_index] -= plan.g_sum @ Jtr.ravel()
@@ -239,19 +245,28 @@ class _ScatterPlan:
     h_sum: sp.csr_matrix
     g_index: np.ndarray
     g_sum: sp.csr_matrix
+    run_starts: np.ndarray | None  # boundaries of runs of identical columns, if few
 
     @staticmethod
-    def build(cols: np.ndarray, n: int) -> "_ScatterPlan":
+    def build(cols: np.ndarray, n: int, *, max_run_fraction: float = 0.2) -> "_ScatterPlan":
         M, D = cols.shape
-        valid = cols >= 0
+        change = np.any(cols[1:] != cols[:-1], axis=1)
+        run_starts = np.r_[0, np.flatnonzero(change) + 1, M]
+        if len(run_starts) - 1 <= max_run_fraction * M:
+            block_cols = cols[run_starts[:-1]]
+        else:
+            run_starts, block_cols = None, cols
+        B = len(block_cols)
+        valid = block_cols >= 0
         pair = (valid[:, :, None] & valid[:, None, :]).ravel()
-        target = (cols[:, :, None] * n + cols[:, None, :]).ravel()[pair]
+        target = (block_cols[:, :, None] * n + block_cols[:, None, :]).ravel()[pair]
         h_index, h_row = np.unique(target, return_inverse=True)
-        h_sum = sp.csr_matrix((np.ones(len(target)), (h_row, np.flatnonzero(pair))), shape=(len(h_index), M * D * D))
-        gt = cols.ravel()[valid.ravel()]
+        h_sum = sp.csr_matrix((np.ones(len(target)), (h_row, np.flatnonzero(pair))), shape=(len(h_index), B * D * D))
+        gvalid = (cols >= 0).ravel()
+        gt = cols.ravel()[gvalid]
         g_index, g_row = np.unique(gt, return_inverse=True)
-        g_sum = sp.csr_matrix((np.ones(len(gt)), (g_row, np.flatnonzero(valid.ravel()))), shape=(len(g_index), M * D))
-        return _ScatterPlan(h_index, h_sum, g_index, g_sum)
+        g_sum = sp.csr_matrix((np.ones(len(gt)), (g_row, np.flatnonzero(gvalid))), shape=(len(g_index), M * D))
+        return _ScatterPlan(h_index, h_sum, g_index, g_sum, run_starts)
 
 
 class _Assembler:
@@ -406,6 +421,7 @@ class Problem:
         inv_px = 1.0 / d.sigma_px
 
         R_all, t_all = poses.R_world_camera, poses.t_world_camera
+        B_planes = plane_geo.tangent_basis(state.plane_n) if len(state.plane_n) else np.zeros((0, 3, 2))
         x_anchor = self._normalized("point_anchor", d.point_anchor_uv)
 
         # Points with an inverse-depth variable: world position per landmark, then per observation.
@@ -423,7 +439,7 @@ class Problem:
             sel = self._planar_points()
             a, q = d.point_anchor[sel], d.point_plane[sel]
             n = state.plane_n[q]
-            pw_s, Jw_s, _ = factors.point_world_on_plane(x_anchor[sel], n, state.plane_d[q], plane_geo.tangent_basis(n), R_all[a], t_all[a])
+            pw_s, Jw_s, _ = factors.point_world_on_plane(x_anchor[sel], n, state.plane_d[q], B_planes[q], R_all[a], t_all[a])
             row = np.cumsum(sel) - 1  # landmark -> row among the planar ones
             r = row[obs.landmark]
             k = obs.pose
@@ -446,7 +462,7 @@ class Problem:
             sel = self._planar_lines()
             a, q = d.line_anchor[sel], d.line_plane[sel]
             n = state.plane_n[q]
-            m, v, J_m, J_v, _ = factors.line_world_on_plane(self._backprojection_normals()[sel], n, state.plane_d[q], plane_geo.tangent_basis(n), R_all[a], t_all[a])
+            m, v, J_m, J_v, _ = factors.line_world_on_plane(self._backprojection_normals()[sel], n, state.plane_d[q], B_planes[q], R_all[a], t_all[a])
             J_mv = np.concatenate([np.concatenate([J_m["anchor"], J_m["plane"]], axis=2), np.concatenate([J_v["anchor"], J_v["plane"]], axis=2)], axis=1)
             r = (np.cumsum(sel) - 1)[obs.landmark]
             k = obs.pose
@@ -461,7 +477,7 @@ class Problem:
             a = d.point_anchor[i]
             pw, Jw = factors.point_world_inverse_depth(cam.normalize(d.point_anchor_uv[i]), state.rho[i], poses.R_world_camera[a], poses.t_world_camera[a])
             n = state.plane_n[q]
-            res, J = factors.point_to_plane(pw, Jw, n, state.plane_d[q], plane_geo.tangent_basis(n))
+            res, J = factors.point_to_plane(pw, Jw, n, state.plane_d[q], B_planes[q])
             asm.add("point_plane", res, np.concatenate([J["anchor"], J["rho"], J["plane"]], axis=2), [(L.pose_col[a], 6), (L.point_col[i], 1), (L.plane_col[q], 3)], scale=1.0 / d.sigma_plane)
 
         # -r: line-to-plane distances of the line points nearest the anchor endpoint rays.

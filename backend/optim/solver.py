@@ -61,13 +61,12 @@ def solve_schur(H: np.ndarray, g: np.ndarray, layout: Layout) -> np.ndarray:
     lo = layout.group_start["points"]
     mid = layout.group_start["lines"]
     hi = layout.group_start["planes"]
+    if hi == lo:  # no landmark variables (-w with every feature on a plane)
+        return _dense_solve(H, g)
     reduced = np.r_[0:lo, hi:n]
     delta = np.zeros(n)
     H_rr = H[np.ix_(reduced, reduced)]
     g_r = g[reduced]
-    if hi == lo:
-        delta[reduced] = _dense_solve(H_rr, g_r)
-        return delta
     H_rl = H[reduced, lo:hi]
     g_l = g[lo:hi]
     # W = H_rl H_ll⁻¹ and H_ll⁻¹ g_l, blockwise.

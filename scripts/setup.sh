@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Creates .venv with Python 3.11 and installs coplanar with its pinned dependencies
+# (and the test tools when called with --test). Re-running is cheap: it reinstalls only
+# when pyproject.toml changed. Sourced by start.sh and test.sh.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$root"
+
+extras=""
+if [ "${1:-}" = "--test" ]; then extras="[test]"; fi
+
+python_bin=""
+for cand in python3.11 python3; do
+  if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)'; then
+    python_bin="$(command -v "$cand")"; break
+  fi
+done
+if [ -z "$python_bin" ]; then
+  echo "error: coplanar needs Python 3.11 (python3.11 or python3 on PATH)" >&2
+  exit 2
+fi
+
+# Python's venv module is a separate Debian package on some systems.
+if ! "$python_bin" -c 'import venv, ensurepip' >/dev/null 2>&1; then
+  if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = "0" ]; then
+    echo "installing python3-venv (Debian)" >&2
+    apt-get update -qq && apt-get install -y -qq python3-venv >/dev/null
+  else
+    echo "error: Python's venv module is missing: install python3-venv" >&2
+    exit 2
+  fi
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  "$python_bin" -m venv .venv
+fi
+
+stamp=".venv/.coplanar-installed${extras}"
+want="$(sha256sum pyproject.toml | cut -d' ' -f1)"
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+  echo "installing coplanar${extras} and its pinned dependencies into .venv" >&2
+  .venv/bin/python -m pip install --quiet --upgrade "pip==25.3"
+  .venv/bin/python -m pip install --quiet -e ".${extras}"
+  echo "$want" > "$stamp"
+fi
