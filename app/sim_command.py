@@ -27,13 +27,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _check_writable_file(path: pathlib.Path, option: str) -> None:
+    """Fail early (before hours of work) if `path` cannot be written; leaves no file behind."""
     from app.cli import UsageError
 
+    if path.is_dir() or path.name in ("", ".", ".."):
+        raise UsageError(f"cannot write {option} {path}: Is a directory")
+    existed = path.exists()
     try:
         with open(path, "a"):
             pass
     except OSError as e:
         raise UsageError(f"cannot write {option} {path}: {e.strerror or e}") from None
+    if not existed:
+        path.unlink()
 
 
 def _parse_variants(text: str) -> list[str]:
@@ -90,8 +96,8 @@ def run(args: argparse.Namespace) -> int:
     if args.runs < 1:
         raise UsageError(f"--runs must be at least 1, got {args.runs}")
     variants = _parse_variants(args.variants)
-    plot_path = args.plot if args.plot is not None else args.json.with_suffix(".png")
     _check_writable_file(args.json, "--json")
+    plot_path = args.plot if args.plot is not None else args.json.with_suffix(".png")
     _check_writable_file(plot_path, "--plot")
     if args.hessian_dir is not None:
         try:

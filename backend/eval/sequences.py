@@ -48,14 +48,15 @@ def _wall_features(rng: np.random.Generator, *, origin: np.ndarray, u: np.ndarra
     a = rng.uniform(-half_u, half_u, n_points)
     b = rng.uniform(-half_z, half_z, n_points)
     points = origin + a[:, None] * u + b[:, None] * z
-    centre_a = rng.uniform(-half_u, half_u, n_segments)
-    centre_b = rng.uniform(-half_z, half_z, n_segments)
     length = rng.uniform(0.5, 2.0, n_segments)
     # Half near vertical, half near horizontal: within ±10° of the axis.
     base = np.where(np.arange(n_segments) < n_segments // 2, np.pi / 2, 0.0)
     angle = base + np.deg2rad(rng.uniform(-10.0, 10.0, n_segments))
     da = 0.5 * length * np.cos(angle)
     db = 0.5 * length * np.sin(angle)
+    # Centres uniform where both endpoints stay inside the wall's extent.
+    centre_a = rng.uniform(-1.0, 1.0, n_segments) * (half_u - np.abs(da))
+    centre_b = rng.uniform(-1.0, 1.0, n_segments) * (half_z - np.abs(db))
     centre = origin + centre_a[:, None] * u + centre_b[:, None] * z
     half = da[:, None] * u + db[:, None] * z
     segments = np.stack([centre - half, centre + half], axis=1)

@@ -17,9 +17,7 @@ def tangent_basis(n: np.ndarray) -> np.ndarray:
     aligned with n (as gtsam's Unit3 does), the second `n × b1`.
     """
     n = np.asarray(n, dtype=float)
-    a = np.zeros_like(n)
-    idx = np.argmin(np.abs(n), axis=-1)
-    np.put_along_axis(a, idx[..., None], 1.0, axis=-1)
+    a = np.eye(3)[np.argmin(np.abs(n), axis=-1)]
     b1 = np.cross(a, n)
     b1 /= np.linalg.norm(b1, axis=-1, keepdims=True)
     b2 = np.cross(n, b1)

@@ -57,7 +57,7 @@ def log(R: np.ndarray) -> np.ndarray:
     w = scale[..., None] * vee
     if np.any(near_pi):
         # Axis from the largest column of (R + I) / 2 = a a^T for θ = π.
-        B = (R + np.eye(3)) / 2.0
+        B = (R + np.swapaxes(R, -1, -2)) / 4.0 + np.eye(3) / 2.0  # symmetric part: a aᵀ at θ = π
         diag = np.diagonal(B, axis1=-2, axis2=-1)
         idx = np.argmax(diag, axis=-1)
         col = np.take_along_axis(B, idx[..., None, None].repeat(3, axis=-1), axis=-2)[..., 0, :]
