@@ -112,16 +112,20 @@ def point_reprojection(
     """
     d = p_world - t_world_camera
     # p_rel = R_kᵀ d, written out: row j of R_kᵀ is column j of R_k.
-    p_rel = (d[:, None, :] @ R_world_camera)[:, 0, :]
+    R = R_world_camera
+    p_rel = d[:, 0, None] * R[:, 0, :] + d[:, 1, None] * R[:, 1, :] + d[:, 2, None] * R[:, 2, :]  # R_kᵀ d
     p_cam = p_rel - offset_camera
     inv_z = 1.0 / p_cam[:, 2]
     x_z, y_z = p_cam[:, 0] * inv_z, p_cam[:, 1] * inv_z
     residual = np.stack([camera.fx * x_z + camera.cx, camera.fy * y_z + camera.cy], axis=-1) - uv_observed
-    # Rows of ∂π/∂p_cam: (fx/z) (1, 0, -x/z) and (fy/z) (0, 1, -y/z).
-    g0 = np.stack([camera.fx * inv_z, np.zeros_like(inv_z), -camera.fx * x_z * inv_z], axis=-1)
-    g1 = np.stack([np.zeros_like(inv_z), camera.fy * inv_z, -camera.fy * y_z * inv_z], axis=-1)
-    G = np.stack([g0, g1], axis=1)  # (M, 2, 3)
-    J_pw = G @ _transpose(R_world_camera)  # ∂/∂X_w = G R_kᵀ
+    # Rows of G = ∂π/∂p_cam: (fx/z) (1, 0, -x/z) and (fy/z) (0, 1, -y/z).
+    a0, c0 = camera.fx * inv_z, -camera.fx * x_z * inv_z
+    a1, c1 = camera.fy * inv_z, -camera.fy * y_z * inv_z
+    zero = np.zeros_like(inv_z)
+    g0 = np.stack([a0, zero, c0], axis=-1)
+    g1 = np.stack([zero, a1, c1], axis=-1)
+    # ∂/∂X_w = G R_kᵀ: row r of it is G_r0 (R e₀)ᵀ... i.e. combinations of R's columns.
+    J_pw = np.stack([a0[:, None] * R[:, :, 0] + c0[:, None] * R[:, :, 2], a1[:, None] * R[:, :, 1] + c1[:, None] * R[:, :, 2]], axis=1)
     D = J_world.shape[2]
     J = np.empty((p_world.shape[0], 2, D + 6))
     J[..., :D] = J_pw @ J_world
@@ -205,12 +209,12 @@ def line_reprojection(
     of the stacked world (m, v) w.r.t. the line's own variables. Returns the residual and
     the Jacobian (M, 2, D + 6), the last 6 columns for the observing pose.
     """
-    mv = np.stack([m_world - _cross(t_world_camera, v_world), v_world], axis=1) @ R_world_camera
+    mv = np.stack([m_world - _cross(t_world_camera, v_world), v_world], axis=1) @ R_world_camera  # rows · R = (Rᵀ ·)ᵀ
     m_rel, v_cam = mv[:, 0], mv[:, 1]
     l = m_rel - _cross(offset_camera, v_cam)
     inv_norm = 1.0 / np.sqrt(l[:, 0] ** 2 + l[:, 1] ** 2)
     x = np.stack([x_start, x_end], axis=1)  # (M, 2, 3)
-    e = (x @ l[:, :, None])[..., 0]
+    e = np.sum(x * l[:, None, :], axis=2)
     f = camera.fx
     residual = f * e * inv_norm[:, None]
     l12 = l.copy()
