@@ -16,7 +16,7 @@ from backend.geometry import so3
 def from_points(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Plücker (m, v) of the lines through points p and q (..., 3); v = q - p."""
     v = np.asarray(q, dtype=float) - np.asarray(p, dtype=float)
-    return np.cross(p, v), v
+    return so3.cross(p, v), v
 
 
 def to_orthonormal(m: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -27,10 +27,10 @@ def to_orthonormal(m: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray
     nv = np.linalg.norm(v, axis=-1)
     u2 = v / nv[..., None]
     # m ⟂ v always; for a line through the origin pick any unit vector ⟂ v.
-    fallback = np.cross(u2, np.where(np.abs(u2[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    fallback = so3.cross(u2, np.where(np.abs(u2[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
     u1 = np.where((nm > 1e-12 * nv)[..., None], m / np.maximum(nm, 1e-300)[..., None], fallback)
     u1 = u1 / np.linalg.norm(u1, axis=-1, keepdims=True)
-    u3 = np.cross(u1, u2)
+    u3 = so3.cross(u1, u2)
     U = np.stack([u1, u2, u3], axis=-1)
     return U, np.arctan2(nv, nm)
 
@@ -51,14 +51,14 @@ def retract(U: np.ndarray, phi: np.ndarray, delta: np.ndarray) -> tuple[np.ndarr
 def to_camera(m_world: np.ndarray, v_world: np.ndarray, R_world_camera: np.ndarray, t_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World Plücker lines into camera frames: `v_c = Rᵀ v_w`, `m_c = Rᵀ (m_w - t × v_w)`."""
     v_c = np.einsum("...ji,...j->...i", R_world_camera, v_world)
-    m_c = np.einsum("...ji,...j->...i", R_world_camera, m_world - np.cross(t_world_camera, v_world))
+    m_c = np.einsum("...ji,...j->...i", R_world_camera, m_world - so3.cross(t_world_camera, v_world))
     return m_c, v_c
 
 
 def to_world(m_camera: np.ndarray, v_camera: np.ndarray, R_world_camera: np.ndarray, t_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera Plücker lines into the world: `v_w = R v_c`, `m_w = R m_c + t × v_w`."""
     v_w = np.einsum("...ij,...j->...i", R_world_camera, v_camera)
-    m_w = np.einsum("...ij,...j->...i", R_world_camera, m_camera) + np.cross(t_world_camera, v_w)
+    m_w = np.einsum("...ij,...j->...i", R_world_camera, m_camera) + so3.cross(t_world_camera, v_w)
     return m_w, v_w
 
 
@@ -70,7 +70,7 @@ def image_line(m_camera: np.ndarray) -> np.ndarray:
 
 def closest_point_to_origin(m: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Point of the line nearest the frame origin: `v × m / |v|²`."""
-    return np.cross(v, m) / np.sum(v * v, axis=-1, keepdims=True)
+    return so3.cross(v, m) / np.sum(v * v, axis=-1, keepdims=True)
 
 
 def from_two_planes(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -78,6 +78,6 @@ def from_two_planes(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.ndarr
     `v = n1 × n2`, `m = d1 n2 - d2 n1` (the dual Plücker matrix `π₁π₂ᵀ - π₂π₁ᵀ`)."""
     n1 = np.asarray(n1, dtype=float)
     n2 = np.asarray(n2, dtype=float)
-    v = np.cross(n1, n2)
+    v = so3.cross(n1, n2)
     m = np.asarray(d1)[..., None] * n2 - np.asarray(d2)[..., None] * n1
     return m, v

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from backend.geometry import so3
+
 
 def tangent_basis(n: np.ndarray) -> np.ndarray:
     """Orthonormal basis (..., 3, 2) of the tangent space of unit normals n (..., 3).
@@ -18,9 +20,9 @@ def tangent_basis(n: np.ndarray) -> np.ndarray:
     """
     n = np.asarray(n, dtype=float)
     a = np.eye(3)[np.argmin(np.abs(n), axis=-1)]
-    b1 = np.cross(a, n)
+    b1 = so3.cross(a, n)
     b1 /= np.linalg.norm(b1, axis=-1, keepdims=True)
-    b2 = np.cross(n, b1)
+    b2 = so3.cross(n, b1)
     return np.stack([b1, b2], axis=-1)
 
 

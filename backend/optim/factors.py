@@ -15,6 +15,7 @@ import numpy as np
 
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
+from backend.optim import kernels
 
 Blocks = dict[str, np.ndarray]
 
@@ -88,51 +89,35 @@ def point_world_on_plane(
 # --------------------------------------------------------------------------- projection
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """`a × b` over the last axis (faster than np.cross for stacks of 3-vectors)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
-
 def point_reprojection(
     camera: PinholeCamera,
     p_world: np.ndarray,
     J_world: np.ndarray,
+    landmark: np.ndarray,
     R_world_camera: np.ndarray,
     t_world_camera: np.ndarray,
+    pose: np.ndarray,
     offset_camera: np.ndarray,
     uv_observed: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixel reprojection residual `π_K(R_kᵀ (X_w - t_k) - o) - u_k`, (M, 2).
 
-    J_world (M, 3, D) is the Jacobian of X_w w.r.t. its own variables (chained through).
-    Returns the residual, the Jacobian (M, 2, D + 6) whose last 6 columns are the observing
-    pose's `(δθ, δt)`, and the depth (M,).
+    p_world (L, 3) and J_world (L, 3, D) are the landmarks' world positions and Jacobians
+    w.r.t. their own variables; observation m sees landmark `landmark[m]` from pose
+    `pose[m]` of the (N, 3, 3) / (N, 3) pose arrays. With G = ∂π/∂p_cam, the Jacobian is
+    `[G R_kᵀ J_world, G [p_rel]_×, -G R_kᵀ]` (M, 2, D + 6), the last 6 columns for the
+    observing pose's `(δθ, δt)`. Also returns the depth (M,).
     """
-    d = p_world - t_world_camera
-    # p_rel = R_kᵀ d, written out: row j of R_kᵀ is column j of R_k.
-    R = R_world_camera
-    p_rel = d[:, 0, None] * R[:, 0, :] + d[:, 1, None] * R[:, 1, :] + d[:, 2, None] * R[:, 2, :]  # R_kᵀ d
-    p_cam = p_rel - offset_camera
-    inv_z = 1.0 / p_cam[:, 2]
-    x_z, y_z = p_cam[:, 0] * inv_z, p_cam[:, 1] * inv_z
-    residual = np.stack([camera.fx * x_z + camera.cx, camera.fy * y_z + camera.cy], axis=-1) - uv_observed
-    # Rows of G = ∂π/∂p_cam: (fx/z) (1, 0, -x/z) and (fy/z) (0, 1, -y/z).
-    a0, c0 = camera.fx * inv_z, -camera.fx * x_z * inv_z
-    a1, c1 = camera.fy * inv_z, -camera.fy * y_z * inv_z
-    zero = np.zeros_like(inv_z)
-    g0 = np.stack([a0, zero, c0], axis=-1)
-    g1 = np.stack([zero, a1, c1], axis=-1)
-    # ∂/∂X_w = G R_kᵀ: row r of it is G_r0 (R e₀)ᵀ... i.e. combinations of R's columns.
-    J_pw = np.stack([a0[:, None] * R[:, :, 0] + c0[:, None] * R[:, :, 2], a1[:, None] * R[:, :, 1] + c1[:, None] * R[:, :, 2]], axis=1)
+    M = len(landmark)
     D = J_world.shape[2]
-    J = np.empty((p_world.shape[0], 2, D + 6))
-    J[..., :D] = J_pw @ J_world
-    J[:, 0, D : D + 3] = _cross(g0, p_rel)  # rows of G [p_rel]_×
-    J[:, 1, D : D + 3] = _cross(g1, p_rel)
-    J[..., D + 3 :] = -J_pw
-    return residual, J, p_cam[:, 2]
+    residual = np.empty((M, 2))
+    J = np.empty((M, 2, D + 6))
+    depth = np.empty(M)
+    kernels.point_reprojection(
+        camera.fx, camera.fy, camera.cx, camera.cy, p_world, J_world, landmark, R_world_camera, t_world_camera, pose,
+        np.ascontiguousarray(offset_camera, dtype=float), np.ascontiguousarray(uv_observed, dtype=float), residual, J, depth,
+    )
+    return residual, J, depth
 
 
 # --------------------------------------------------------------------------- lines in 3D
@@ -168,9 +153,9 @@ def line_world_on_plane(
     `|N × n_w|` (M,) (small when the back-projection plane is parallel to the plane).
     """
     N = _mv(R_world_anchor, n_backprojection_anchor)
-    v = np.cross(N, n_world)
+    v = so3.cross(N, n_world)
     q = np.sum(n_world * t_world_anchor, axis=-1) + d_world
-    m = -q[:, None] * N + np.cross(t_world_anchor, v)
+    m = -q[:, None] * N + so3.cross(t_world_anchor, v)
     dN_dtheta = -R_world_anchor @ so3.hat(n_backprojection_anchor)
     hat_n, hat_N, hat_t = so3.hat(n_world), so3.hat(N), so3.hat(t_world_anchor)
     dv_dN = -hat_n
@@ -195,8 +180,10 @@ def line_reprojection(
     m_world: np.ndarray,
     v_world: np.ndarray,
     J_mv: np.ndarray,
+    landmark: np.ndarray,
     R_world_camera: np.ndarray,
     t_world_camera: np.ndarray,
+    pose: np.ndarray,
     offset_camera: np.ndarray,
     x_start: np.ndarray,
     x_end: np.ndarray,
@@ -205,33 +192,20 @@ def line_reprojection(
 
     With `l = m_c` the image line of the world line in the observing camera (moved by the
     camera offset: `m_o = m_c - o × v_c`), `r = f [x̂_s·l, x̂_e·l] / sqrt(l₁² + l₂²)`
-    for the observed normalized endpoints x̂_s, x̂_e (M, 3). J_mv (M, 6, D) is the Jacobian
-    of the stacked world (m, v) w.r.t. the line's own variables. Returns the residual and
-    the Jacobian (M, 2, D + 6), the last 6 columns for the observing pose.
+    for the observed normalized endpoints x̂_s, x̂_e (M, 3). m_world, v_world (L, 3) are
+    the lines' world Plücker coordinates and J_mv (L, 6, D) the Jacobian of the stacked
+    (m, v) w.r.t. their own variables; `landmark` and `pose` index them per observation.
+    Returns the residual and the Jacobian (M, 2, D + 6), the last 6 columns for the pose:
+    `∂l/∂δθ = [m_rel]_× - [o]_× [v_c]_×`, `∂l/∂δt = R_kᵀ [v_w]_×`.
     """
-    mv = np.stack([m_world - _cross(t_world_camera, v_world), v_world], axis=1) @ R_world_camera  # rows · R = (Rᵀ ·)ᵀ
-    m_rel, v_cam = mv[:, 0], mv[:, 1]
-    l = m_rel - _cross(offset_camera, v_cam)
-    inv_norm = 1.0 / np.sqrt(l[:, 0] ** 2 + l[:, 1] ** 2)
-    x = np.stack([x_start, x_end], axis=1)  # (M, 2, 3)
-    e = np.sum(x * l[:, None, :], axis=2)
-    f = camera.fx
-    residual = f * e * inv_norm[:, None]
-    l12 = l.copy()
-    l12[:, 2] = 0.0
-    # Rows of ∂r/∂l (M, 2, 3).
-    dr_dl = f * (x * inv_norm[:, None, None] - (e * inv_norm[:, None] ** 3)[..., None] * l12[:, None, :])
-    # ∂r/∂m_w = dr_dl R_kᵀ; ∂r/∂v_w = -(dr_dl R_kᵀ)[t]_× - (dr_dl [o]_×) R_kᵀ; row·[a]_× = row × a.
-    Rt = _transpose(R_world_camera)
-    q = dr_dl @ Rt
-    o = offset_camera[:, None, :]
-    dr_dmv = np.concatenate([q, -_cross(q, t_world_camera[:, None, :]) - _cross(dr_dl, o) @ Rt], axis=2)
+    M = len(landmark)
     D = J_mv.shape[2]
-    J = np.empty(residual.shape + (D + 6,))
-    J[..., :D] = dr_dmv @ J_mv
-    # ∂l/∂δθ = [m_rel]_× - [o]_× [v_cam]_×; ∂l/∂δt = R_kᵀ [v_w]_×.
-    J[..., D : D + 3] = _cross(dr_dl, m_rel[:, None, :]) - _cross(_cross(dr_dl, o), v_cam[:, None, :])
-    J[..., D + 3 :] = _cross(q, v_world[:, None, :])
+    residual = np.empty((M, 2))
+    J = np.empty((M, 2, D + 6))
+    kernels.line_reprojection(
+        camera.fx, np.ascontiguousarray(m_world), np.ascontiguousarray(v_world), np.ascontiguousarray(J_mv), landmark, R_world_camera,
+        t_world_camera, pose, np.ascontiguousarray(offset_camera, dtype=float), np.ascontiguousarray(x_start), np.ascontiguousarray(x_end), residual, J,
+    )
     return residual, J
 
 
@@ -260,7 +234,7 @@ def line_point_nearest_ray(
     `D = |v|²|w|² - (v·w)²` (M,) (zero when the ray is parallel to the line).
     """
     a = np.sum(v * v, axis=-1)
-    vxm = np.cross(v, m_world)
+    vxm = so3.cross(v, m_world)
     p0 = vxm / a[:, None]
     r0 = p0 - c_world
     b = np.sum(v * w_world, axis=-1)

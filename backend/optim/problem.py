@@ -20,7 +20,7 @@ from backend.geometry import plane as plane_geo
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.geometry.se3 import Poses
-from backend.optim import factors
+from backend.optim import factors, kernels
 
 VARIANTS: tuple[str, ...] = ("P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w")
 VariantName = Literal["P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w"]
@@ -205,68 +205,15 @@ class Linearization:
             return sp.csr_matrix((0, self.n_params))
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(offset, self.n_params))
 
-    def normal_equations(self, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Dense `H = JᵀJ` (n, n) and `g = -Jᵀr` (n,), summed per observation block.
-
-        `cache` (kept by the problem) stores the scatter indices, which depend only on the
-        problem's structure, between iterations.
-        """
+    def normal_equations(self) -> tuple[np.ndarray, np.ndarray]:
+        """Dense `H = JᵀJ` (n, n) and `g = -Jᵀr` (n,), summed over the observations' blocks."""
         n = self.n_params
-        H_flat = np.zeros(n * n)
+        H = np.zeros((n, n))
         g = np.zeros(n)
-        for k, b in enumerate(self.batches):
-            key = (k, b.name, b.cols.shape)
-            plan = None if cache is None else cache.get(key)
-            if plan is None:
-                plan = _ScatterPlan.build(b.cols, n)
-                if cache is not None:
-                    cache[key] = plan
-            if plan.run_starts is not None:
-                # Few distinct variable tuples: one small GEMM per run of observations.
-                J2 = b.jacobian.reshape(-1, b.jacobian.shape[2])
-                r = b.jacobian.shape[1]
-                JtJ = np.stack([J2[r * s0 : r * s1].T @ J2[r * s0 : r * s1] for s0, s1 in zip(plan.run_starts[:-1], plan.run_starts[1:])])
-            else:
-                JtJ = np.matmul(np.swapaxes(b.jacobian, 1, 2), b.jacobian)
-            H_flat[plan.h_index] += plan.h_sum @ JtJ.ravel()
-            Jtr = np.einsum("mrd,mr->md", b.jacobian, b.residual)
-            g[plan.g_index] -= plan.g_sum @ Jtr.ravel()
-        return H_flat.reshape(n, n), g
-
-
-@dataclasses.dataclass(frozen=True)
-class _ScatterPlan:
-    """Sums a batch's per-observation JᵀJ blocks (M, D, D) and Jᵀr (M, D) into the flat
-    Hessian and gradient: sparse 0/1 matrices map every entry to its unique target, so one
-    sparse mat-vec per iteration replaces a scatter. It depends only on the problem's
-    structure, so it is built once and cached."""
-
-    h_index: np.ndarray
-    h_sum: sp.csr_matrix
-    g_index: np.ndarray
-    g_sum: sp.csr_matrix
-    run_starts: np.ndarray | None  # boundaries of runs of identical columns, if few
-
-    @staticmethod
-    def build(cols: np.ndarray, n: int, *, max_run_fraction: float = 0.2) -> "_ScatterPlan":
-        M, D = cols.shape
-        change = np.any(cols[1:] != cols[:-1], axis=1)
-        run_starts = np.r_[0, np.flatnonzero(change) + 1, M]
-        if len(run_starts) - 1 <= max_run_fraction * M:
-            block_cols = cols[run_starts[:-1]]
-        else:
-            run_starts, block_cols = None, cols
-        B = len(block_cols)
-        valid = block_cols >= 0
-        pair = (valid[:, :, None] & valid[:, None, :]).ravel()
-        target = (block_cols[:, :, None] * n + block_cols[:, None, :]).ravel()[pair]
-        h_index, h_row = np.unique(target, return_inverse=True)
-        h_sum = sp.csr_matrix((np.ones(len(target)), (h_row, np.flatnonzero(pair))), shape=(len(h_index), B * D * D))
-        gvalid = (cols >= 0).ravel()
-        gt = cols.ravel()[gvalid]
-        g_index, g_row = np.unique(gt, return_inverse=True)
-        g_sum = sp.csr_matrix((np.ones(len(gt)), (g_row, np.flatnonzero(gvalid))), shape=(len(g_index), M * D))
-        return _ScatterPlan(h_index, h_sum, g_index, g_sum, run_starts)
+        for b in self.batches:
+            kernels.accumulate_normal_equations(b.jacobian, b.residual, b.cols, H, g)
+        kernels.mirror_upper(H)
+        return H, g
 
 
 class _Assembler:
@@ -325,9 +272,9 @@ class Problem:
     # ------------------------------------------------------------------ state
 
     def prepare(self) -> None:
-        """Build the structure-only caches (column maps, scatter plans) once, so that a
-        timed optimization measures the numeric work only (like a solver's symbolic phase)."""
-        self.linearize(self.initial_state()).normal_equations(self.cache)
+        """Build the structure-only caches (column maps, normalized observations) and compile
+        the kernels once, so that a timed optimization measures the numeric work only."""
+        self.linearize(self.initial_state()).normal_equations()
 
     def initial_state(self) -> State:
         d = self.data
@@ -406,7 +353,7 @@ class Problem:
         d = self.data
         xs = d.camera.normalize(d.line_anchor_uv[:, :2])
         xe = d.camera.normalize(d.line_anchor_uv[:, 2:])
-        n = np.cross(xs, xe)
+        n = so3.cross(xs, xe)
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
     # ------------------------------------------------------------------ linearization
@@ -430,7 +377,7 @@ class Problem:
             pw_l, Jw_l = factors.point_world_inverse_depth(x_anchor, state.rho, R_all[d.point_anchor], t_all[d.point_anchor])
             Jcat_l = np.concatenate([Jw_l["anchor"], Jw_l["rho"]], axis=2)
             lm, k = obs.landmark, obs.pose
-            res, J, _ = factors.point_reprojection(cam, pw_l[lm], Jcat_l[lm], R_all[k], t_all[k], obs.offset, obs.uv)
+            res, J, _ = factors.point_reprojection(cam, pw_l, Jcat_l, lm, R_all, t_all, k, obs.offset, obs.uv)
             asm.add("points", res, J, [(L.pose_col[d.point_anchor[lm]], 6), (L.point_col[lm], 1), (L.pose_col[k], 6)], scale=inv_px, robust=self.robust_px)
 
         # Co-planar (-w) points: the anchor ray meets the plane.
@@ -443,7 +390,7 @@ class Problem:
             row = np.cumsum(sel) - 1  # landmark -> row among the planar ones
             r = row[obs.landmark]
             k = obs.pose
-            res, J, _ = factors.point_reprojection(cam, pw_s[r], np.concatenate([Jw_s["anchor"], Jw_s["plane"]], axis=2)[r], R_all[k], t_all[k], obs.offset, obs.uv)
+            res, J, _ = factors.point_reprojection(cam, pw_s, np.concatenate([Jw_s["anchor"], Jw_s["plane"]], axis=2), r, R_all, t_all, k, obs.offset, obs.uv)
             asm.add("points", res, J, [(L.pose_col[a[r]], 6), (L.plane_col[q[r]], 3), (L.pose_col[k], 6)], scale=inv_px, robust=self.robust_px)
 
         # Lines in orthonormal form.
@@ -453,7 +400,7 @@ class Problem:
             J_mv = np.concatenate([J_m, J_v], axis=1)
             lm, k = obs.landmark, obs.pose
             x_s, x_e = self._normalized("line_free_s", obs.uv[:, :2]), self._normalized("line_free_e", obs.uv[:, 2:])
-            res, J = factors.line_reprojection(cam, m[lm], v[lm], J_mv[lm], R_all[k], t_all[k], obs.offset, x_s, x_e)
+            res, J = factors.line_reprojection(cam, m, v, J_mv, lm, R_all, t_all, k, obs.offset, x_s, x_e)
             asm.add("lines", res, J, [(L.line_col[lm], 4), (L.pose_col[k], 6)], scale=inv_px, robust=self.robust_px)
 
         # Co-planar (-w) lines.
@@ -467,7 +414,7 @@ class Problem:
             r = (np.cumsum(sel) - 1)[obs.landmark]
             k = obs.pose
             x_s, x_e = self._normalized("line_planar_s", obs.uv[:, :2]), self._normalized("line_planar_e", obs.uv[:, 2:])
-            res, J = factors.line_reprojection(cam, m[r], v[r], J_mv[r], R_all[k], t_all[k], obs.offset, x_s, x_e)
+            res, J = factors.line_reprojection(cam, m, v, J_mv, r, R_all, t_all, k, obs.offset, x_s, x_e)
             asm.add("lines", res, J, [(L.pose_col[a[r]], 6), (L.plane_col[q[r]], 3), (L.pose_col[k], 6)], scale=inv_px, robust=self.robust_px)
 
         # -r: point-to-plane distances.
@@ -554,10 +501,10 @@ def _line_plane_valid(data: ProblemData) -> np.ndarray:
     idx = np.flatnonzero(ok)
     xs = data.camera.normalize(data.line_anchor_uv[idx, :2])
     xe = data.camera.normalize(data.line_anchor_uv[idx, 2:])
-    n_l = np.cross(xs, xe)
+    n_l = so3.cross(xs, xe)
     n_l /= np.linalg.norm(n_l, axis=-1, keepdims=True)
     N = np.einsum("mij,mj->mi", data.poses.R_world_camera[data.line_anchor[idx]], n_l)
-    s = np.linalg.norm(np.cross(N, data.plane_n[data.line_plane[idx]]), axis=-1)
+    s = np.linalg.norm(so3.cross(N, data.plane_n[data.line_plane[idx]]), axis=-1)
     ok[idx] = s > np.sin(MIN_PLANE_ANGLE_RAD)
     return ok
 
@@ -629,19 +576,19 @@ def build_problem(data: ProblemData, variant: str, *, robust_px: float | None = 
         point_pairs = np.zeros((0, 2), int)
         line_pairs = np.zeros((0, 2), int)
 
-    def grouped(obs: Observations, anchor: np.ndarray, plane: np.ndarray) -> Observations:
-        """Order observations so those with the same variables are adjacent (their Hessian
-        blocks are summed before the scatter)."""
-        return obs.select(np.lexsort((obs.landmark, plane[obs.landmark], obs.pose, anchor[obs.landmark])))
+    def grouped(obs: Observations, anchor: np.ndarray) -> Observations:
+        """Order observations by (anchor, observing pose) so that those with the same
+        variables are adjacent: their Hessian blocks are summed before touching H."""
+        return obs.select(np.lexsort((obs.landmark, obs.pose, anchor[obs.landmark])))
 
     return Problem(
         data=data,
         variant=variant,
         layout=layout,
         point_obs_inv_depth=po.select(~planar_obs),
-        point_obs_planar=grouped(po.select(planar_obs), data.point_anchor, data.point_plane),
+        point_obs_planar=grouped(po.select(planar_obs), data.point_anchor),
         line_obs_free=lo.select(~lplanar_obs) if len(lo) else lo,
-        line_obs_planar=grouped(lo_planar, data.line_anchor, data.line_plane),
+        line_obs_planar=grouped(lo_planar, data.line_anchor),
         point_plane_pairs=point_pairs,
         line_plane_pairs=line_pairs,
         robust_px=robust_px,

@@ -91,9 +91,9 @@ def solve_schur(H: np.ndarray, g: np.ndarray, layout: Layout) -> np.ndarray:
     return delta
 
 
-def solve_normal_equations(lin: Linearization, layout: Layout, *, cache: dict | None = None) -> np.ndarray:
+def solve_normal_equations(lin: Linearization, layout: Layout) -> np.ndarray:
     """Gauss-Newton step δ (n_params,) solving `JᵀJ δ = -Jᵀ r` by the Schur complement."""
-    H, g = lin.normal_equations(cache)
+    H, g = lin.normal_equations()
     return solve_schur(H, g, layout)
 
 
@@ -138,7 +138,7 @@ def optimize(
     lam = initial_lambda
     for _ in range(max_iterations):
         t0 = time.perf_counter()
-        H, g = lin.normal_equations(problem.cache)
+        H, g = lin.normal_equations()
         t_solve += time.perf_counter() - t0
         step = 1.0
         for attempt in range(max_step_halvings + 1 if method == "gn" else 12):
