@@ -49,6 +49,24 @@ def _triangulate_points(x_norm: list[np.ndarray], poses: list[np.ndarray], R: np
     return out
 
 
+def _triangulate_lines(x_start: np.ndarray, x_end: np.ndarray, landmark: np.ndarray, pose: np.ndarray, n_lines: int, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Plücker (m, v) of each line from all its views: every observation gives a world
+    back-projection plane `π_k = (N, -N·t_k)`; the homogeneous points X with `π_k·X ≈ 0` for
+    all k form the near-null space of the stacked planes, spanned by two points A, B of the
+    line (the DLT of lines): `v = a₄ b - b₄ a`, `m = a × b`."""
+    N = so3.cross(x_start, x_end)
+    N = np.einsum("mij,mj->mi", R[pose], N / np.linalg.norm(N, axis=1, keepdims=True))
+    planes = np.concatenate([N, -np.sum(N * t[pose], axis=1, keepdims=True)], axis=1)
+    m = np.empty((n_lines, 3))
+    v = np.empty((n_lines, 3))
+    for i in range(n_lines):  # setup only, not timed
+        _, _, Vt = np.linalg.svd(planes[landmark == i])
+        A, B = Vt[-1], Vt[-2]
+        v[i] = A[3] * B[:3] - B[3] * A[:3]
+        m[i] = so3.cross(A[:3], B[:3])
+    return m, v
+
+
 def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise: NoiseModel = NoiseModel()) -> ProblemData:
     """Simulate one run: noisy observations, perturbed initial poses with odometry between
     them, a prior on pose 0 at its true value, landmarks initialized from the initial poses."""
@@ -86,27 +104,14 @@ def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise
     bad = ~np.isfinite(rho) | (rho <= 0)
     rho[bad] = 1.0 / 4.0  # fall back to a plausible depth for a failed triangulation
 
-    # Line observations and two-view initialization (anchor and the view whose
-    # back-projection plane is most different from the anchor's).
+    # Line observations; each line is initialized from the back-projection planes of all
+    # its views (the line spans the near-null space of the stacked plane vectors).
     k_l, l_idx = np.nonzero(ok_l[:, lines])
     seg_uv = np.concatenate([uv_s_noisy[k_l, lines[l_idx]], uv_e_noisy[k_l, lines[l_idx]]], axis=1)
     line_obs = Observations(landmark=l_idx, pose=k_l, uv=seg_uv, offset=np.zeros((len(k_l), 3)))
     line_anchor = np.argmax(ok_l[:, lines], axis=0)
     line_anchor_uv = np.concatenate([uv_s_noisy[line_anchor, lines], uv_e_noisy[line_anchor, lines]], axis=1)
-    n_obs = np.cross(cam.normalize(seg_uv[:, :2]), cam.normalize(seg_uv[:, 2:]))
-    n_obs /= np.linalg.norm(n_obs, axis=1, keepdims=True)
-    N_world = np.einsum("mij,mj->mi", R_init[k_l], n_obs)
-    is_anchor = k_l == line_anchor[l_idx]
-    a_obs = np.empty(len(lines), int)
-    a_obs[l_idx[is_anchor]] = np.flatnonzero(is_anchor)
-    sin_angle = np.linalg.norm(np.cross(N_world, N_world[a_obs[l_idx]]), axis=1)
-    by_line_then_angle = np.lexsort((sin_angle, l_idx))
-    last_of_line = np.cumsum(np.bincount(l_idx, minlength=len(lines))) - 1
-    best = by_line_then_angle[last_of_line]
-    N1, N2 = N_world[a_obs], N_world[best]
-    d1 = -np.sum(N1 * t_init[k_l[a_obs]], axis=1)
-    d2 = -np.sum(N2 * t_init[k_l[best]], axis=1)
-    m, v = line_geo.from_two_planes(N1, d1, N2, d2)
+    m, v = _triangulate_lines(cam.normalize(seg_uv[:, :2]), cam.normalize(seg_uv[:, 2:]), l_idx, k_l, len(lines), R_init, t_init)
     line_U, line_phi = line_geo.to_orthonormal(m, v)
 
     # Planes: least-squares fit to the triangulated points of each wall.

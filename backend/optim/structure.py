@@ -36,7 +36,7 @@ class HessianStructure:
 
     def write_png(self, path: pathlib.Path | str, *, max_px: int = 800) -> None:
         """Render to PNG: nonzeros coloured by group (cameras, points/lines, planes)."""
-        write_hessian_png(path, self.pattern, self.groups, max_px=max_px, title=f"{self.variant}: H = JᵀJ")
+        write_hessian_png(path, self.pattern, self.groups, max_px=max_px, title=f"{self.variant}: H = J^T J")
 
 
 def hessian_structure(problem: Problem, state: State | None = None) -> HessianStructure:

@@ -161,3 +161,26 @@ def test_run_study_rejects_unknown_sequence_and_variant() -> None:
         montecarlo.run_study("c", runs=1)
     with pytest.raises(ValueError):
         montecarlo.run_study("b", runs=1, variants=["P-x"])
+
+
+@pytest.mark.parametrize("name", ["a", "b"])
+def test_lines_are_initialized_from_all_views(name: str) -> None:
+    """With exact measurements and poses the multi-view line triangulation returns the true
+    lines; with the study's noise, lines seen across the motion (vertical) start close."""
+    world = sequences.make_world(name)
+    exact = montecarlo.make_problem_data(world, np.random.default_rng(0), noise=montecarlo.NoiseModel(0.0, 0.0, 0.0))
+    uv_s, ok_s = sequences.visible(world, world.segments[:, 0])
+    uv_e, ok_e = sequences.visible(world, world.segments[:, 1])
+    segments = world.segments[(ok_s & ok_e).sum(axis=0) >= 2]
+    assert len(segments) == len(exact.line_anchor)
+
+    def distances(data: ProblemData) -> np.ndarray:
+        m, v = line_geo.from_orthonormal(data.line_U, data.line_phi)
+        p0 = line_geo.closest_point_to_origin(m, v)
+        u = v / np.linalg.norm(v, axis=1, keepdims=True)
+        return np.stack([np.linalg.norm(np.cross(segments[:, k] - p0, u), axis=1) for k in (0, 1)], axis=1).max(axis=1)
+
+    assert distances(exact).max() < 1e-9
+    noisy = montecarlo.make_problem_data(world, np.random.default_rng(0))
+    vertical = np.abs(segments[:, 1, 2] - segments[:, 0, 2]) > 0.5 * np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)
+    assert np.median(distances(noisy)[vertical]) < 0.3
