@@ -2,11 +2,13 @@
 
 Conventions: rotation vectors (axis * angle, radians) map to matrices by the
 exponential map; perturbations are applied on the right, `R <- R Exp(δθ)`.
-Every function accepts a single vector/matrix or a stack with leading axes.
+Every function accepts a single vector/matrix or a stack with leading axes. exp, log and
+the inverse right Jacobian run as compiled loops (numba): they sit on the solver's hot path.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 _SMALL_ANGLE = 1e-8
@@ -32,17 +34,73 @@ def hat(w: np.ndarray) -> np.ndarray:
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _exp_kernel(w, out):  # noqa: ANN001
+    for n in range(w.shape[0]):
+        x, y, z = w[n, 0], w[n, 1], w[n, 2]
+        t2 = x * x + y * y + z * z
+        theta = np.sqrt(t2)
+        if theta < _SMALL_ANGLE:
+            a = 1.0 - t2 / 6.0
+            b = 0.5 - t2 / 24.0
+        else:
+            a = np.sin(theta) / theta
+            b = (1.0 - np.cos(theta)) / t2
+        # I + a K + b K², with K² = w wᵀ - θ² I.
+        out[n, 0, 0] = 1.0 + b * (x * x - t2)
+        out[n, 1, 1] = 1.0 + b * (y * y - t2)
+        out[n, 2, 2] = 1.0 + b * (z * z - t2)
+        out[n, 0, 1] = -a * z + b * x * y
+        out[n, 1, 0] = a * z + b * x * y
+        out[n, 0, 2] = a * y + b * x * z
+        out[n, 2, 0] = -a * y + b * x * z
+        out[n, 1, 2] = -a * x + b * y * z
+        out[n, 2, 1] = a * x + b * y * z
+
+
 def exp(w: np.ndarray) -> np.ndarray:
     """Rodrigues: rotation vectors (..., 3) in radians to matrices (..., 3, 3)."""
     w = np.asarray(w, dtype=float)
-    theta = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = hat(w)
-    K2 = K @ K
-    small = theta < _SMALL_ANGLE
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
-    return np.eye(3) + a * K + b * K2
+    flat = np.ascontiguousarray(w.reshape(-1, 3))
+    out = np.empty((flat.shape[0], 3, 3))
+    _exp_kernel(flat, out)
+    return out.reshape(w.shape[:-1] + (3, 3))
+
+
+@numba.njit(cache=True, nogil=True)
+def _log_kernel(R, out):  # noqa: ANN001
+    for n in range(R.shape[0]):
+        M = R[n]
+        c = min(1.0, max(-1.0, (M[0, 0] + M[1, 1] + M[2, 2] - 1.0) / 2.0))
+        theta = np.arccos(c)
+        v0 = M[2, 1] - M[1, 2]
+        v1 = M[0, 2] - M[2, 0]
+        v2 = M[1, 0] - M[0, 1]
+        if theta < 1e-6:
+            scale = 0.5 + theta * theta / 12.0
+            out[n, 0], out[n, 1], out[n, 2] = scale * v0, scale * v1, scale * v2
+        elif theta > np.pi - 1e-4:
+            # Axis from the symmetric part: (R + Rᵀ)/4 + I/2 = a aᵀ at θ = π.
+            best = 0
+            for i in range(1, 3):
+                if M[i, i] > M[best, best]:
+                    best = i
+            a0 = (M[best, 0] + M[0, best]) / 4.0
+            a1 = (M[best, 1] + M[1, best]) / 4.0
+            a2 = (M[best, 2] + M[2, best]) / 4.0
+            if best == 0:
+                a0 += 0.5
+            elif best == 1:
+                a1 += 0.5
+            else:
+                a2 += 0.5
+            norm = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            sign = -1.0 if a0 * v0 + a1 * v1 + a2 * v2 < 0.0 else 1.0
+            k = sign * theta / norm
+            out[n, 0], out[n, 1], out[n, 2] = k * a0, k * a1, k * a2
+        else:
+            scale = theta / (2.0 * np.sin(theta))
+            out[n, 0], out[n, 1], out[n, 2] = scale * v0, scale * v1, scale * v2
 
 
 def log(R: np.ndarray) -> np.ndarray:
@@ -51,29 +109,32 @@ def log(R: np.ndarray) -> np.ndarray:
     Accurate near 0 and near π (the axis is then taken from the symmetric part).
     """
     R = np.asarray(R, dtype=float)
-    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    theta = np.arccos(cos)
-    vee = np.stack(
-        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]],
-        axis=-1,
-    )
-    sin = np.sin(theta)
-    small = theta < 1e-6
-    near_pi = theta > np.pi - 1e-4
-    scale = np.where(small, 0.5 + theta**2 / 12.0, theta / (2.0 * np.where(small, 1.0, sin + 1e-300)))
-    w = scale[..., None] * vee
-    if np.any(near_pi):
-        # Axis from the largest column of (R + I) / 2 = a a^T for θ = π.
-        B = (R + np.swapaxes(R, -1, -2)) / 4.0 + np.eye(3) / 2.0  # symmetric part: a aᵀ at θ = π
-        diag = np.diagonal(B, axis1=-2, axis2=-1)
-        idx = np.argmax(diag, axis=-1)
-        col = np.take_along_axis(B, idx[..., None, None].repeat(3, axis=-1), axis=-2)[..., 0, :]
-        axis = col / np.linalg.norm(col, axis=-1, keepdims=True)
-        # Choose the sign consistent with the (tiny) antisymmetric part.
-        sign = np.where(np.sum(axis * vee, axis=-1) < 0.0, -1.0, 1.0)
-        w_pi = (sign * theta)[..., None] * axis
-        w = np.where(near_pi[..., None], w_pi, w)
-    return w
+    flat = np.ascontiguousarray(R.reshape(-1, 3, 3))
+    out = np.empty((flat.shape[0], 3))
+    _log_kernel(flat, out)
+    return out.reshape(R.shape[:-2] + (3,))
+
+
+@numba.njit(cache=True, nogil=True)
+def _right_jacobian_inv_kernel(w, out):  # noqa: ANN001
+    for n in range(w.shape[0]):
+        x, y, z = w[n, 0], w[n, 1], w[n, 2]
+        t2 = x * x + y * y + z * z
+        theta = np.sqrt(t2)
+        if theta < 1e-5:
+            c = 1.0 / 12.0 + t2 / 720.0
+        else:
+            c = 1.0 / t2 - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(theta))
+        # I + ½ K + c K², with K² = w wᵀ - θ² I.
+        out[n, 0, 0] = 1.0 + c * (x * x - t2)
+        out[n, 1, 1] = 1.0 + c * (y * y - t2)
+        out[n, 2, 2] = 1.0 + c * (z * z - t2)
+        out[n, 0, 1] = -0.5 * z + c * x * y
+        out[n, 1, 0] = 0.5 * z + c * x * y
+        out[n, 0, 2] = 0.5 * y + c * x * z
+        out[n, 2, 0] = -0.5 * y + c * x * z
+        out[n, 1, 2] = -0.5 * x + c * y * z
+        out[n, 2, 1] = 0.5 * x + c * y * z
 
 
 def right_jacobian_inv(w: np.ndarray) -> np.ndarray:
@@ -82,16 +143,10 @@ def right_jacobian_inv(w: np.ndarray) -> np.ndarray:
     For `Log(Exp(w) Exp(δ)) ≈ w + J_r⁻¹(w) δ`.
     """
     w = np.asarray(w, dtype=float)
-    theta = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = hat(w)
-    small = theta < 1e-5
-    safe = np.where(small, 1.0, theta)
-    c = np.where(
-        small,
-        1.0 / 12.0 + theta**2 / 720.0,
-        1.0 / safe**2 - (1.0 + np.cos(safe)) / (2.0 * safe * np.sin(safe) + 1e-300),
-    )
-    return np.eye(3) + 0.5 * K + c * (K @ K)
+    flat = np.ascontiguousarray(w.reshape(-1, 3))
+    out = np.empty((flat.shape[0], 3, 3))
+    _right_jacobian_inv_kernel(flat, out)
+    return out.reshape(w.shape[:-1] + (3, 3))
 
 
 def right_jacobian(w: np.ndarray) -> np.ndarray:

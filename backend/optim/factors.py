@@ -62,28 +62,22 @@ def point_world_on_plane(
     B_plane: np.ndarray,
     R_world_anchor: np.ndarray,
     t_world_anchor: np.ndarray,
-) -> tuple[np.ndarray, Blocks, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Co-planar (-w) point: the anchor ray `t_a + h R_a x̂_a` meets the plane (n, d).
 
     `h = -(n·t_a + d) / (n·R_a x̂_a)` is the depth along x̂_a (paper Eq. 3 in the anchor
-    frame). B_plane (M, 3, 2) is the tangent basis of n. Returns X_w (M, 3), blocks
-    {"anchor": (M, 3, 6), "plane": (M, 3, 3)} and h (M,) (the caller rejects h <= 0).
+    frame). B_plane (P, 3, 2) is the tangent basis of n. With `ray = R_a x̂_a`, `s = n·ray`,
+    `q = n·t_a + d`: `∂X/∂δθ_a = (h I + ray (q/s²) nᵀ)(-R_a [x̂_a]_×)`,
+    `∂X/∂δt_a = I - ray nᵀ/s`, `∂X/∂n = ray (-t_a/s + (q/s²) ray)ᵀ`, `∂X/∂d = -ray/s`.
+    Returns X_w (P, 3), the Jacobian (P, 3, 9) w.r.t. [anchor (6) | plane (3)] and h (P,)
+    (the caller rejects h <= 0).
     """
-    ray = _mv(R_world_anchor, x_anchor)
-    s = np.sum(n_world * ray, axis=-1)
-    q = np.sum(n_world * t_world_anchor, axis=-1) + d_world
-    h = -q / s
-    p_world = t_world_anchor + h[:, None] * ray
-    dh_dray = (q / s**2)[:, None] * n_world
-    dray_dtheta = -R_world_anchor @ so3.hat(x_anchor)
-    J_anchor = np.empty(p_world.shape + (6,))
-    J_anchor[..., :3] = (h[:, None, None] * np.eye(3) + _outer(ray, dh_dray)) @ dray_dtheta
-    J_anchor[..., 3:] = np.eye(3) - _outer(ray, n_world / s[:, None])
-    dh_dn = -t_world_anchor / s[:, None] + (q / s**2)[:, None] * ray
-    J_plane = np.empty(p_world.shape + (3,))
-    J_plane[..., :2] = _outer(ray, dh_dn) @ B_plane
-    J_plane[..., 2] = ray * (-1.0 / s)[:, None]
-    return p_world, {"anchor": J_anchor, "plane": J_plane}, h
+    P = len(x_anchor)
+    p_world = np.empty((P, 3))
+    J = np.empty((P, 3, 9))
+    h = np.empty(P)
+    kernels.point_on_plane(*(np.ascontiguousarray(a, dtype=float) for a in (x_anchor, n_world, d_world, B_plane, R_world_anchor, t_world_anchor)), p_world, J, h)
+    return p_world, J, h
 
 
 # --------------------------------------------------------------------------- projection
@@ -144,35 +138,24 @@ def line_world_on_plane(
     B_plane: np.ndarray,
     R_world_anchor: np.ndarray,
     t_world_anchor: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, Blocks, Blocks, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Co-planar (-w) line: the anchor back-projection plane `(n_l, 0)` meets (n, d).
 
     In the anchor frame `v_a = n_l × n_a`, `m_a = -d_a n_l`; in the world with
-    `N = R_a n_l`: `v_w = N × n_w`, `m_w = -(d_w + n_w·t_a) N + t_a × v_w`.
-    Returns m_w, v_w (M, 3), their blocks {"anchor": (M, 3, 6), "plane": (M, 3, 3)} and
-    `|N × n_w|` (M,) (small when the back-projection plane is parallel to the plane).
+    `N = R_a n_l`, `q = n·t_a + d`: `v_w = N × n_w`, `m_w = -q N + t_a × v_w`. Jacobians:
+    `∂N/∂δθ_a = -R_a [n_l]_×`, `∂v/∂N = -[n]_×`, `∂v/∂n = [N]_×`,
+    `∂m/∂N = -q I - [t_a]_× [n]_×`, `∂m/∂n = -N t_aᵀ + [t_a]_× [N]_×`,
+    `∂m/∂δt_a = -N nᵀ - [v]_×`, `∂m/∂d = -N`.
+    Returns m_w, v_w (L, 3), the Jacobian (L, 6, 9) of the stacked (m, v) w.r.t. [anchor (6)
+    | plane (3)] and `|N × n_w|` (L,) (small when the back-projection plane is parallel to
+    the plane).
     """
-    N = _mv(R_world_anchor, n_backprojection_anchor)
-    v = so3.cross(N, n_world)
-    q = np.sum(n_world * t_world_anchor, axis=-1) + d_world
-    m = -q[:, None] * N + so3.cross(t_world_anchor, v)
-    dN_dtheta = -R_world_anchor @ so3.hat(n_backprojection_anchor)
-    hat_n, hat_N, hat_t = so3.hat(n_world), so3.hat(N), so3.hat(t_world_anchor)
-    dv_dN = -hat_n
-    dm_dN = -q[:, None, None] * np.eye(3) + hat_t @ dv_dN
-    dv_dn = hat_N
-    dm_dn = -_outer(N, t_world_anchor) + hat_t @ hat_N
-    J_v_anchor = np.zeros(v.shape + (6,))
-    J_v_anchor[..., :3] = dv_dN @ dN_dtheta
-    J_m_anchor = np.empty(v.shape + (6,))
-    J_m_anchor[..., :3] = dm_dN @ dN_dtheta
-    J_m_anchor[..., 3:] = -_outer(N, n_world) - so3.hat(v)
-    J_v_plane = np.zeros(v.shape + (3,))
-    J_v_plane[..., :2] = dv_dn @ B_plane
-    J_m_plane = np.empty(v.shape + (3,))
-    J_m_plane[..., :2] = dm_dn @ B_plane
-    J_m_plane[..., 2] = -N
-    return m, v, {"anchor": J_m_anchor, "plane": J_m_plane}, {"anchor": J_v_anchor, "plane": J_v_plane}, np.linalg.norm(v, axis=-1)
+    L = len(n_backprojection_anchor)
+    m = np.empty((L, 3))
+    v = np.empty((L, 3))
+    J = np.empty((L, 6, 9))
+    kernels.line_on_plane(*(np.ascontiguousarray(a, dtype=float) for a in (n_backprojection_anchor, n_world, d_world, B_plane, R_world_anchor, t_world_anchor)), m, v, J)
+    return m, v, J, np.linalg.norm(v, axis=-1)
 
 
 def line_reprojection(

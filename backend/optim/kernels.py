@@ -141,15 +141,28 @@ def accumulate_normal_equations(J, residual, cols, H, g):  # noqa: ANN001
     b = np.zeros(D)
     for m in range(M):
         Jm = J[m]
-        for r in range(R):
-            rr = residual[m, r]
-            Jr = Jm[r]
+        if R == 2:  # the common case (reprojection): both rows in one pass over A
+            J0 = Jm[0]
+            J1 = Jm[1]
+            r0 = residual[m, 0]
+            r1 = residual[m, 1]
             for i in range(D):
-                jri = Jr[i]
-                b[i] += jri * rr
+                a0 = J0[i]
+                a1 = J1[i]
+                b[i] += a0 * r0 + a1 * r1
                 Ai = A[i]
                 for j in range(D):
-                    Ai[j] += jri * Jr[j]
+                    Ai[j] += a0 * J0[j] + a1 * J1[j]
+        else:
+            for r in range(R):
+                rr = residual[m, r]
+                Jr = Jm[r]
+                for i in range(D):
+                    jri = Jr[i]
+                    b[i] += jri * rr
+                    Ai = A[i]
+                    for j in range(D):
+                        Ai[j] += jri * Jr[j]
         last = m == M - 1
         if not last:
             for i in range(D):
@@ -186,3 +199,132 @@ def mirror_upper(H):  # noqa: ANN001
     for i in range(n):
         for j in range(i + 1, n):
             H[j, i] = H[i, j]
+
+
+@numba.njit(cache=True, nogil=True)
+def point_on_plane(x_anchor, n_world, d_world, B_plane, R_world_anchor, t_world_anchor, p_world, J, h_out):  # noqa: ANN001
+    """Co-planar point per landmark: p_world (P, 3), J (P, 3, 9) w.r.t. [anchor (δθ, δt) |
+    plane (δn, δd)], depth h (P,). Formulas in :func:`backend.optim.factors.point_world_on_plane`."""
+    for p in range(x_anchor.shape[0]):
+        R = R_world_anchor[p]
+        x0, x1, x2 = x_anchor[p, 0], x_anchor[p, 1], x_anchor[p, 2]
+        n0, n1, n2 = n_world[p, 0], n_world[p, 1], n_world[p, 2]
+        t0, t1, t2 = t_world_anchor[p, 0], t_world_anchor[p, 1], t_world_anchor[p, 2]
+        r0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
+        r1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
+        r2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
+        s = n0 * r0 + n1 * r1 + n2 * r2
+        q = n0 * t0 + n1 * t1 + n2 * t2 + d_world[p]
+        h = -q / s
+        h_out[p] = h
+        p_world[p, 0] = t0 + h * r0
+        p_world[p, 1] = t1 + h * r1
+        p_world[p, 2] = t2 + h * r2
+        ray = (r0, r1, r2)
+        k = q / (s * s)  # ∂h/∂ray = k n
+        for c in range(3):
+            # column c of ∂ray/∂δθ = -R (x̂ × e_c)
+            e0, e1, e2 = 0.0, 0.0, 0.0
+            if c == 0:
+                e1, e2 = x2, -x1
+            elif c == 1:
+                e0, e2 = -x2, x0
+            else:
+                e0, e1 = x1, -x0
+            d0 = -(R[0, 0] * e0 + R[0, 1] * e1 + R[0, 2] * e2)
+            d1 = -(R[1, 0] * e0 + R[1, 1] * e1 + R[1, 2] * e2)
+            d2 = -(R[2, 0] * e0 + R[2, 1] * e1 + R[2, 2] * e2)
+            dh = k * (n0 * d0 + n1 * d1 + n2 * d2)
+            J[p, 0, c] = h * d0 + r0 * dh
+            J[p, 1, c] = h * d1 + r1 * dh
+            J[p, 2, c] = h * d2 + r2 * dh
+        nn = (n0, n1, n2)
+        for i in range(3):
+            for c in range(3):
+                J[p, i, 3 + c] = (1.0 if i == c else 0.0) - ray[i] * nn[c] / s
+        # ∂h/∂n = -t/s + k ray, then through the tangent basis; ∂h/∂d = -1/s.
+        g0 = -t0 / s + k * r0
+        g1 = -t1 / s + k * r1
+        g2 = -t2 / s + k * r2
+        for b in range(2):
+            gb = g0 * B_plane[p, 0, b] + g1 * B_plane[p, 1, b] + g2 * B_plane[p, 2, b]
+            for i in range(3):
+                J[p, i, 6 + b] = ray[i] * gb
+        for i in range(3):
+            J[p, i, 8] = -ray[i] / s
+
+
+@numba.njit(cache=True, nogil=True)
+def line_on_plane(n_backprojection, n_world, d_world, B_plane, R_world_anchor, t_world_anchor, m_out, v_out, J):  # noqa: ANN001
+    """Co-planar line per landmark: Plücker m, v (L, 3) and J (L, 6, 9), rows (m, v), columns
+    [anchor (δθ, δt) | plane (δn, δd)]. Formulas in :func:`backend.optim.factors.line_world_on_plane`."""
+    dN = np.empty((3, 3))
+    dv_dN = np.empty((3, 3))
+    dm_dN = np.empty((3, 3))
+    dv_dn = np.empty((3, 3))
+    dm_dn = np.empty((3, 3))
+    for p in range(n_backprojection.shape[0]):
+        R = R_world_anchor[p]
+        l0, l1, l2 = n_backprojection[p, 0], n_backprojection[p, 1], n_backprojection[p, 2]
+        n0, n1, n2 = n_world[p, 0], n_world[p, 1], n_world[p, 2]
+        t0, t1, t2 = t_world_anchor[p, 0], t_world_anchor[p, 1], t_world_anchor[p, 2]
+        N0 = R[0, 0] * l0 + R[0, 1] * l1 + R[0, 2] * l2
+        N1 = R[1, 0] * l0 + R[1, 1] * l1 + R[1, 2] * l2
+        N2 = R[2, 0] * l0 + R[2, 1] * l1 + R[2, 2] * l2
+        v0, v1, v2 = _cross3(N0, N1, N2, n0, n1, n2)
+        q = n0 * t0 + n1 * t1 + n2 * t2 + d_world[p]
+        c0, c1, c2 = _cross3(t0, t1, t2, v0, v1, v2)
+        m_out[p, 0], m_out[p, 1], m_out[p, 2] = -q * N0 + c0, -q * N1 + c1, -q * N2 + c2
+        v_out[p, 0], v_out[p, 1], v_out[p, 2] = v0, v1, v2
+        for c in range(3):  # ∂N/∂δθ = -R [n_l]_×, column c = -R (n_l × e_c)
+            e0, e1, e2 = 0.0, 0.0, 0.0
+            if c == 0:
+                e1, e2 = l2, -l1
+            elif c == 1:
+                e0, e2 = -l2, l0
+            else:
+                e0, e1 = l1, -l0
+            for i in range(3):
+                dN[i, c] = -(R[i, 0] * e0 + R[i, 1] * e1 + R[i, 2] * e2)
+        # dv/dN = -[n]_×, dv/dn = [N]_×; dm/dN = -q I + [t]_× dv/dN; dm/dn = -N tᵀ + [t]_× [N]_×.
+        hn = ((0.0, -n2, n1), (n2, 0.0, -n0), (-n1, n0, 0.0))
+        hN = ((0.0, -N2, N1), (N2, 0.0, -N0), (-N1, N0, 0.0))
+        ht = ((0.0, -t2, t1), (t2, 0.0, -t0), (-t1, t0, 0.0))
+        NN = (N0, N1, N2)
+        tt = (t0, t1, t2)
+        for i in range(3):
+            for j in range(3):
+                dv_dN[i, j] = -hn[i][j]
+                dv_dn[i, j] = hN[i][j]
+        for i in range(3):
+            for j in range(3):
+                acc_N = 0.0
+                acc_n = 0.0
+                for k in range(3):
+                    acc_N += ht[i][k] * dv_dN[k, j]
+                    acc_n += ht[i][k] * hN[k][j]
+                dm_dN[i, j] = acc_N - (q if i == j else 0.0)
+                dm_dn[i, j] = acc_n - NN[i] * tt[j]
+        nn = (n0, n1, n2)
+        hv = ((0.0, -v2, v1), (v2, 0.0, -v0), (-v1, v0, 0.0))
+        for i in range(3):
+            for c in range(3):
+                am = 0.0
+                av = 0.0
+                for k in range(3):
+                    am += dm_dN[i, k] * dN[k, c]
+                    av += dv_dN[i, k] * dN[k, c]
+                J[p, i, c] = am
+                J[p, 3 + i, c] = av
+                J[p, i, 3 + c] = -NN[i] * nn[c] - hv[i][c]
+                J[p, 3 + i, 3 + c] = 0.0
+            for b in range(2):
+                am = 0.0
+                av = 0.0
+                for k in range(3):
+                    am += dm_dn[i, k] * B_plane[p, k, b]
+                    av += dv_dn[i, k] * B_plane[p, k, b]
+                J[p, i, 6 + b] = am
+                J[p, 3 + i, 6 + b] = av
+            J[p, i, 8] = -NN[i]
+            J[p, 3 + i, 8] = 0.0

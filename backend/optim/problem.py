@@ -328,7 +328,7 @@ class Problem:
             n, dd = state.plane_n[q], state.plane_d[q]
             a = d.line_anchor[planar]
             n_l = self._backprojection_normals()[planar]
-            mw, vw, _, _, _ = factors.line_world_on_plane(n_l, n, dd, plane_geo.tangent_basis(n), state.poses.R_world_camera[a], state.poses.t_world_camera[a])
+            mw, vw, _, _ = factors.line_world_on_plane(n_l, n, dd, plane_geo.tangent_basis(n), state.poses.R_world_camera[a], state.poses.t_world_camera[a])
             m, v = m.copy(), v.copy()
             m[planar], v[planar] = mw, vw
         return m, v
@@ -386,11 +386,11 @@ class Problem:
             sel = self._planar_points()
             a, q = d.point_anchor[sel], d.point_plane[sel]
             n = state.plane_n[q]
-            pw_s, Jw_s, _ = factors.point_world_on_plane(x_anchor[sel], n, state.plane_d[q], B_planes[q], R_all[a], t_all[a])
+            pw_s, Jw_s, _ = factors.point_world_on_plane(x_anchor[sel], n, state.plane_d[q], B_planes[q], R_all[a], t_all[a])  # J: anchor | plane
             row = np.cumsum(sel) - 1  # landmark -> row among the planar ones
             r = row[obs.landmark]
             k = obs.pose
-            res, J, _ = factors.point_reprojection(cam, pw_s, np.concatenate([Jw_s["anchor"], Jw_s["plane"]], axis=2), r, R_all, t_all, k, obs.offset, obs.uv)
+            res, J, _ = factors.point_reprojection(cam, pw_s, Jw_s, r, R_all, t_all, k, obs.offset, obs.uv)
             asm.add("points", res, J, [(L.pose_col[a[r]], 6), (L.plane_col[q[r]], 3), (L.pose_col[k], 6)], scale=inv_px, robust=self.robust_px)
 
         # Lines in orthonormal form.
@@ -409,8 +409,7 @@ class Problem:
             sel = self._planar_lines()
             a, q = d.line_anchor[sel], d.line_plane[sel]
             n = state.plane_n[q]
-            m, v, J_m, J_v, _ = factors.line_world_on_plane(self._backprojection_normals()[sel], n, state.plane_d[q], B_planes[q], R_all[a], t_all[a])
-            J_mv = np.concatenate([np.concatenate([J_m["anchor"], J_m["plane"]], axis=2), np.concatenate([J_v["anchor"], J_v["plane"]], axis=2)], axis=1)
+            m, v, J_mv, _ = factors.line_world_on_plane(self._backprojection_normals()[sel], n, state.plane_d[q], B_planes[q], R_all[a], t_all[a])
             r = (np.cumsum(sel) - 1)[obs.landmark]
             k = obs.pose
             x_s, x_e = self._normalized("line_planar_s", obs.uv[:, :2]), self._normalized("line_planar_e", obs.uv[:, 2:])

@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 
 from backend.optim.problem import Layout, Linearization, Problem, State
 
@@ -37,13 +38,17 @@ class SolveReport:
 
 
 def _dense_solve(S: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve S x = b for symmetric positive (semi)definite S; least squares if singular."""
+    """Solve S x = b for symmetric positive (semi)definite S by Cholesky; least squares
+    where S is singular (degenerate geometry)."""
     if S.shape[0] == 0:
         return np.zeros(0)
-    try:
-        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(S, lower=False, check_finite=False), b, check_finite=False)
-    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
-        return np.linalg.lstsq(S, b, rcond=None)[0]
+    # S is symmetric: its transpose is the same matrix in the Fortran order LAPACK wants.
+    c, info = scipy.linalg.lapack.dpotrf(S.T, lower=0, clean=0)
+    if info == 0:
+        x, info = scipy.linalg.lapack.dpotrs(c, b, lower=0)
+        if info == 0:
+            return x
+    return np.linalg.lstsq(S, b, rcond=None)[0]
 
 
 def _invert_blocks(blocks: np.ndarray) -> np.ndarray:
