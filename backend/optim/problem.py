@@ -118,7 +118,10 @@ class ProblemData:
 
 @dataclasses.dataclass
 class State:
-    """Current estimate of all variables (also of those a variant does not optimize)."""
+    """Current estimate of all variables (also of those a variant does not optimize).
+
+    Treat the arrays as read-only: :meth:`Problem.retract` returns a new state that shares
+    the arrays of the variables it did not move."""
 
     poses: Poses
     rho: np.ndarray
@@ -281,24 +284,34 @@ class Problem:
         return State(d.poses.copy(), d.point_rho.astype(float).copy(), d.line_U.copy(), d.line_phi.astype(float).copy(), d.plane_n.copy(), d.plane_d.astype(float).copy())
 
     def retract(self, state: State, delta: np.ndarray) -> State:
-        """Apply a GN step (n_params,) to the optimized variables."""
-        L = self.layout
-        new = state.copy()
-        free = L.pose_col >= 0
-        if np.any(free):
-            step = delta[L.pose_col[free][:, None] + np.arange(6)]
-            moved = Poses(state.poses.R_world_camera[free], state.poses.t_world_camera[free]).retract(step)
-            new.poses.R_world_camera[free] = moved.R_world_camera
-            new.poses.t_world_camera[free] = moved.t_world_camera
-        sel = L.point_col >= 0
-        new.rho[sel] = state.rho[sel] + delta[L.point_col[sel]]
-        sel = L.line_col >= 0
-        if np.any(sel):
-            new.line_U[sel], new.line_phi[sel] = line_geo.retract(state.line_U[sel], state.line_phi[sel], delta[L.line_col[sel][:, None] + np.arange(4)])
-        sel = L.plane_col >= 0
-        if np.any(sel):
-            new.plane_n[sel], new.plane_d[sel] = plane_geo.retract(state.plane_n[sel], state.plane_d[sel], delta[L.plane_col[sel][:, None] + np.arange(3)])
-        return new
+        """Apply a step (n_params,) to the optimized variables; the others are shared."""
+        idx = self.cache.get("retract")
+        if idx is None:  # which variables move and where their columns are (structure only)
+            L = self.layout
+            idx = self.cache["retract"] = tuple(
+                (np.flatnonzero(col >= 0), col[col >= 0][:, None] + np.arange(dim))
+                for col, dim in ((L.pose_col, 6), (L.point_col, 1), (L.line_col, 4), (L.plane_col, 3))
+            )
+        (pi, pc), (qi, qc), (li, lc), (ni, nc) = idx
+        R, t = state.poses.R_world_camera, state.poses.t_world_camera
+        if len(pi):
+            R, t = R.copy(), t.copy()
+            step = delta[pc]
+            R[pi] = R[pi] @ so3.exp(step[:, :3])
+            t[pi] += step[:, 3:]
+        rho = state.rho
+        if len(qi):
+            rho = rho.copy()
+            rho[qi] += delta[qc[:, 0]]
+        line_U, line_phi = state.line_U, state.line_phi
+        if len(li):
+            line_U, line_phi = line_U.copy(), line_phi.copy()
+            line_U[li], line_phi[li] = line_geo.retract(state.line_U[li], state.line_phi[li], delta[lc])
+        plane_n, plane_d = state.plane_n, state.plane_d
+        if len(ni):
+            plane_n, plane_d = plane_n.copy(), plane_d.copy()
+            plane_n[ni], plane_d[ni] = plane_geo.retract(state.plane_n[ni], state.plane_d[ni], delta[nc])
+        return State(Poses(R, t), rho, line_U, line_phi, plane_n, plane_d)
 
     # ------------------------------------------------------------------ world geometry
 
