@@ -16,15 +16,8 @@ from app import cli
 from backend.eval import montecarlo, sequences
 from backend.optim.problem import VARIANTS, build_problem
 from backend.optim.structure import hessian_structure
+from tests.paper import PAPER_COUNTS_B as PAPER_COUNTS
 
-PAPER_COUNTS = {
-    "P-wo": (100, 350),
-    "P-r": (101, 353),
-    "P-w": (51, 303),
-    "PL-wo": (120, 430),
-    "PL-r": (121, 433),
-    "PL-w": (51, 303),
-}
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 CONSOLE_SCRIPT = pathlib.Path(sys.executable).parent / "coplanar"
 

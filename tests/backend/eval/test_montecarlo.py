@@ -12,16 +12,8 @@ from backend.geometry import line as line_geo
 from backend.geometry.se3 import Poses
 from backend.optim.problem import VARIANTS, ProblemData, State, build_problem
 from backend.optim.solver import optimize
+from tests.paper import PAPER_COUNTS_B as PAPER_COUNTS
 
-# DESIGN §3: items / params of the paper's sequence b.
-PAPER_COUNTS = {
-    "P-wo": (100, 350),
-    "P-r": (101, 353),
-    "P-w": (51, 303),
-    "PL-wo": (120, 430),
-    "PL-r": (121, 433),
-    "PL-w": (51, 303),
-}
 # Initial poses off by 0.2° and 2 cm per axis, exact image measurements.
 PERTURBED_EXACT_PIXELS = montecarlo.NoiseModel(pixel=0.0, rotation_rad=np.deg2rad(0.2), position_m=0.02)
 
