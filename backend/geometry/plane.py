@@ -7,9 +7,29 @@ and `d <- d + δd`. The 3-vector is ordered `(δn, δd)`.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from backend.geometry import so3
+
+
+@numba.njit(cache=True, nogil=True)
+def _tangent_basis_kernel(n, out):  # noqa: ANN001
+    for k in range(n.shape[0]):
+        n0, n1, n2 = n[k, 0], n[k, 1], n[k, 2]
+        a0, a1, a2 = abs(n0), abs(n1), abs(n2)
+        if a0 <= a1 and a0 <= a2:  # a × n for the least aligned axis a
+            b0, b1, b2 = 0.0, -n2, n1
+        elif a1 <= a2:
+            b0, b1, b2 = n2, 0.0, -n0
+        else:
+            b0, b1, b2 = -n1, n0, 0.0
+        inv = 1.0 / np.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+        b0, b1, b2 = b0 * inv, b1 * inv, b2 * inv
+        out[k, 0, 0], out[k, 1, 0], out[k, 2, 0] = b0, b1, b2
+        out[k, 0, 1] = n1 * b2 - n2 * b1  # n × b1
+        out[k, 1, 1] = n2 * b0 - n0 * b2
+        out[k, 2, 1] = n0 * b1 - n1 * b0
 
 
 def tangent_basis(n: np.ndarray) -> np.ndarray:
@@ -19,11 +39,10 @@ def tangent_basis(n: np.ndarray) -> np.ndarray:
     aligned with n (as gtsam's Unit3 does), the second `n × b1`.
     """
     n = np.asarray(n, dtype=float)
-    a = np.eye(3)[np.argmin(np.abs(n), axis=-1)]
-    b1 = so3.cross(a, n)
-    b1 /= np.linalg.norm(b1, axis=-1, keepdims=True)
-    b2 = so3.cross(n, b1)
-    return np.stack([b1, b2], axis=-1)
+    flat = np.ascontiguousarray(n.reshape(-1, 3))
+    out = np.empty((flat.shape[0], 3, 2))
+    _tangent_basis_kernel(flat, out)
+    return out.reshape(n.shape[:-1] + (3, 2))
 
 
 def retract(n: np.ndarray, d: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,10 +1,12 @@
 """Residuals and analytic Jacobians of every factor type, vectorized over observations.
 
-Each function takes stacked inputs (leading axis M = observations) and returns the
-*unwhitened* residual (M, r) and a dict of Jacobian blocks (M, r, dim) keyed by slot:
+Each function takes stacked inputs (leading axis M = observations or landmarks) and returns
+*unwhitened* values with their Jacobians, either as a dict of blocks (M, r, dim) keyed by
+slot or, where the docstring says so, as one array with the slots concatenated. Slots:
 `"anchor"`/`"pose"` (6: `(δθ, δt)`, see :mod:`backend.geometry.se3`), `"rho"` (1),
 `"line"` (4: `(δθ, δφ)`, see :mod:`backend.geometry.line`), `"plane"` (3: `(δn, δd)`, see
-:mod:`backend.geometry.plane`). Frames: poses are `T_world_camera`; an observation from a
+:mod:`backend.geometry.plane`). The per-observation loops run compiled
+(:mod:`backend.optim.kernels`). Frames: poses are `T_world_camera`; an observation from a
 camera whose centre sits at `offset` (metres, in the left camera frame; `(b, 0, 0)` for the
 right camera of a rectified stereo pair) is projected through that camera.
 """

@@ -39,16 +39,23 @@ class SolveReport:
 
 def _dense_solve(S: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Solve S x = b for symmetric positive (semi)definite S by Cholesky; least squares
-    where S is singular (degenerate geometry)."""
+    where S is singular (degenerate geometry).
+
+    S (C order, both triangles filled) is factored in place, without a copy: LAPACK sees
+    `S.T` in Fortran order and overwrites one triangle of it, which is S's upper triangle,
+    so S's strict lower triangle and the saved diagonal still hold S for the least-squares
+    fallback. S's contents are undefined afterwards.
+    """
     if S.shape[0] == 0:
         return np.zeros(0)
-    # S is symmetric: its transpose is the same matrix in the Fortran order LAPACK wants.
-    c, info = scipy.linalg.lapack.dpotrf(S.T, lower=0, clean=0)
+    diagonal = np.diagonal(S).copy()
+    c, info = scipy.linalg.lapack.dpotrf(S.T, lower=1, clean=0, overwrite_a=1)
     if info == 0:
-        x, info = scipy.linalg.lapack.dpotrs(c, b, lower=0)
+        x, info = scipy.linalg.lapack.dpotrs(c, b, lower=1)
         if info == 0:
             return x
-    return np.linalg.lstsq(S, b, rcond=None)[0]
+    lower = np.tril(S, -1)
+    return np.linalg.lstsq(lower + lower.T + np.diag(diagonal), b, rcond=None)[0]
 
 
 def _invert_blocks(blocks: np.ndarray) -> np.ndarray:
@@ -61,7 +68,8 @@ def _invert_blocks(blocks: np.ndarray) -> np.ndarray:
 
 def solve_schur(H: np.ndarray, g: np.ndarray, layout: Layout) -> np.ndarray:
     """Solve `H δ = g` by eliminating the landmark columns (points: 1×1 blocks, lines: 4×4
-    blocks, block-diagonal in H) and solving the reduced camera|plane system by Cholesky."""
+    blocks, block-diagonal in H) and solving the reduced camera|plane system by Cholesky.
+    H is used as workspace: its contents are undefined afterwards."""
     n = layout.n_params
     lo = layout.group_start["points"]
     mid = layout.group_start["lines"]

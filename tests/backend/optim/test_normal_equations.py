@@ -36,3 +36,18 @@ def test_robust_kernel_downweights_an_outlier() -> None:
     plain_costs, robust_costs = plain.linearize(state).costs, robust.linearize(state).costs
     assert robust_costs["points"] < 0.2 * plain_costs["points"]
     assert robust_costs["prior"] == pytest.approx(plain_costs["prior"])  # only reprojections are robust
+
+
+@pytest.mark.parametrize("variant", ["P-wo", "PL-r", "PL-w"])
+def test_schur_solve_matches_a_dense_solve_and_survives_singularity(variant: str) -> None:
+    from backend.optim.solver import solve_schur
+
+    problem = build_problem(_stereo_data(), variant)
+    H, g = problem.linearize(problem.initial_state()).normal_equations()
+    expected = np.linalg.solve(H, g)
+    np.testing.assert_allclose(solve_schur(H.copy(), g, problem.layout), expected, rtol=1e-6, atol=1e-9 * np.abs(expected).max())
+    # A variable no factor constrains (a zero row and column) must not crash the solve.
+    singular = H.copy()
+    singular[:, 0] = singular[0, :] = 0.0
+    delta = solve_schur(singular, g * (np.arange(len(g)) > 0), problem.layout)
+    assert np.all(np.isfinite(delta))
