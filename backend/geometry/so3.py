@@ -70,37 +70,42 @@ def exp(w: np.ndarray) -> np.ndarray:
 @numba.njit(cache=True, nogil=True)
 def _log_kernel(R, out):  # noqa: ANN001
     for n in range(R.shape[0]):
-        M = R[n]
-        c = min(1.0, max(-1.0, (M[0, 0] + M[1, 1] + M[2, 2] - 1.0) / 2.0))
-        theta = np.arccos(c)
-        v0 = M[2, 1] - M[1, 2]
-        v1 = M[0, 2] - M[2, 0]
-        v2 = M[1, 0] - M[0, 1]
-        if theta < 1e-6:
-            scale = 0.5 + theta * theta / 12.0
-            out[n, 0], out[n, 1], out[n, 2] = scale * v0, scale * v1, scale * v2
-        elif theta > np.pi - 1e-4:
-            # Axis from the symmetric part: (R + Rᵀ)/4 + I/2 = a aᵀ at θ = π.
-            best = 0
-            for i in range(1, 3):
-                if M[i, i] > M[best, best]:
-                    best = i
-            a0 = (M[best, 0] + M[0, best]) / 4.0
-            a1 = (M[best, 1] + M[1, best]) / 4.0
-            a2 = (M[best, 2] + M[2, best]) / 4.0
-            if best == 0:
-                a0 += 0.5
-            elif best == 1:
-                a1 += 0.5
-            else:
-                a2 += 0.5
-            norm = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-            sign = -1.0 if a0 * v0 + a1 * v1 + a2 * v2 < 0.0 else 1.0
-            k = sign * theta / norm
-            out[n, 0], out[n, 1], out[n, 2] = k * a0, k * a1, k * a2
+        log_one(R[n], out[n])
+
+
+@numba.njit(cache=True, nogil=True)
+def log_one(M, out):  # noqa: ANN001
+    """Compiled `log` of one rotation matrix M (3, 3) into out (3,) (for other kernels)."""
+    c = min(1.0, max(-1.0, (M[0, 0] + M[1, 1] + M[2, 2] - 1.0) / 2.0))
+    theta = np.arccos(c)
+    v0 = M[2, 1] - M[1, 2]
+    v1 = M[0, 2] - M[2, 0]
+    v2 = M[1, 0] - M[0, 1]
+    if theta < 1e-6:
+        scale = 0.5 + theta * theta / 12.0
+        out[0], out[1], out[2] = scale * v0, scale * v1, scale * v2
+    elif theta > np.pi - 1e-4:
+        # Axis from the symmetric part: (R + Rᵀ)/4 + I/2 = a aᵀ at θ = π.
+        best = 0
+        for i in range(1, 3):
+            if M[i, i] > M[best, best]:
+                best = i
+        a0 = (M[best, 0] + M[0, best]) / 4.0
+        a1 = (M[best, 1] + M[1, best]) / 4.0
+        a2 = (M[best, 2] + M[2, best]) / 4.0
+        if best == 0:
+            a0 += 0.5
+        elif best == 1:
+            a1 += 0.5
         else:
-            scale = theta / (2.0 * np.sin(theta))
-            out[n, 0], out[n, 1], out[n, 2] = scale * v0, scale * v1, scale * v2
+            a2 += 0.5
+        norm = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        sign = -1.0 if a0 * v0 + a1 * v1 + a2 * v2 < 0.0 else 1.0
+        k = sign * theta / norm
+        out[0], out[1], out[2] = k * a0, k * a1, k * a2
+    else:
+        scale = theta / (2.0 * np.sin(theta))
+        out[0], out[1], out[2] = scale * v0, scale * v1, scale * v2
 
 
 def log(R: np.ndarray) -> np.ndarray:
@@ -118,23 +123,29 @@ def log(R: np.ndarray) -> np.ndarray:
 @numba.njit(cache=True, nogil=True)
 def _right_jacobian_inv_kernel(w, out):  # noqa: ANN001
     for n in range(w.shape[0]):
-        x, y, z = w[n, 0], w[n, 1], w[n, 2]
-        t2 = x * x + y * y + z * z
-        theta = np.sqrt(t2)
-        if theta < 1e-5:
-            c = 1.0 / 12.0 + t2 / 720.0
-        else:
-            c = 1.0 / t2 - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(theta))
-        # I + ½ K + c K², with K² = w wᵀ - θ² I.
-        out[n, 0, 0] = 1.0 + c * (x * x - t2)
-        out[n, 1, 1] = 1.0 + c * (y * y - t2)
-        out[n, 2, 2] = 1.0 + c * (z * z - t2)
-        out[n, 0, 1] = -0.5 * z + c * x * y
-        out[n, 1, 0] = 0.5 * z + c * x * y
-        out[n, 0, 2] = 0.5 * y + c * x * z
-        out[n, 2, 0] = -0.5 * y + c * x * z
-        out[n, 1, 2] = -0.5 * x + c * y * z
-        out[n, 2, 1] = 0.5 * x + c * y * z
+        right_jacobian_inv_one(w[n], out[n])
+
+
+@numba.njit(cache=True, nogil=True)
+def right_jacobian_inv_one(w, out):  # noqa: ANN001
+    """Compiled `right_jacobian_inv` of one rotation vector w (3,) into out (3, 3)."""
+    x, y, z = w[0], w[1], w[2]
+    t2 = x * x + y * y + z * z
+    theta = np.sqrt(t2)
+    if theta < 1e-5:
+        c = 1.0 / 12.0 + t2 / 720.0
+    else:
+        c = 1.0 / t2 - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(theta))
+    # I + ½ K + c K², with K² = w wᵀ - θ² I.
+    out[0, 0] = 1.0 + c * (x * x - t2)
+    out[1, 1] = 1.0 + c * (y * y - t2)
+    out[2, 2] = 1.0 + c * (z * z - t2)
+    out[0, 1] = -0.5 * z + c * x * y
+    out[1, 0] = 0.5 * z + c * x * y
+    out[0, 2] = 0.5 * y + c * x * z
+    out[2, 0] = -0.5 * y + c * x * z
+    out[1, 2] = -0.5 * x + c * y * z
+    out[2, 1] = 0.5 * x + c * y * z
 
 
 def right_jacobian_inv(w: np.ndarray) -> np.ndarray:

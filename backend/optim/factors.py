@@ -249,27 +249,18 @@ def line_point_nearest_ray(
 
 
 def relative_pose_error(
-    R_i: np.ndarray, t_i: np.ndarray, R_j: np.ndarray, t_j: np.ndarray, R_ij: np.ndarray, t_ij: np.ndarray
-) -> tuple[np.ndarray, Blocks]:
-    """Odometry residual (M, 6): `[Log(R_ijᵀ R_iᵀ R_j), R_iᵀ (t_j - t_i) - t_ij]`.
-
-    (R_ij, t_ij) is the measured pose of j in i's frame. Blocks "i" and "j" (M, 6, 6).
+    R_world_camera: np.ndarray, t_world_camera: np.ndarray, i: np.ndarray, j: np.ndarray, R_i_j: np.ndarray, t_i_j: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Odometry residual (M, 6): `[Log(R_ijᵀ R_iᵀ R_j), R_iᵀ (t_j - t_i) - t_ij]` for pose
+    pairs (i, j) of the (N, 3, 3) / (N, 3) pose arrays; (R_ij, t_ij) is the measured pose of
+    j in i's frame. Jacobian (M, 6, 12) w.r.t. [pose i | pose j]: rotation rows
+    `[-J_r⁻¹ R_jᵀ R_i, 0 | J_r⁻¹, 0]`, position rows `[[R_iᵀ (t_j - t_i)]_×, -R_iᵀ | 0, R_iᵀ]`.
     """
-    Ri_t = _transpose(R_i)
-    E = _transpose(R_ij) @ Ri_t @ R_j
-    r_rot = so3.log(E)
-    dt = t_j - t_i
-    r_pos = _mv(Ri_t, dt) - t_ij
-    Jr_inv = so3.right_jacobian_inv(r_rot)
-    M = r_rot.shape[0]
-    J_i = np.zeros((M, 6, 6))
-    J_j = np.zeros((M, 6, 6))
-    J_j[:, :3, :3] = Jr_inv
-    J_i[:, :3, :3] = -Jr_inv @ _transpose(R_j) @ R_i
-    J_i[:, 3:, :3] = so3.hat(_mv(Ri_t, dt))
-    J_i[:, 3:, 3:] = -Ri_t
-    J_j[:, 3:, 3:] = Ri_t
-    return np.concatenate([r_rot, r_pos], axis=-1), {"i": J_i, "j": J_j}
+    M = len(i)
+    residual = np.empty((M, 6))
+    J = np.empty((M, 6, 12))
+    kernels.relative_pose(R_world_camera, t_world_camera, np.asarray(i), np.asarray(j), np.ascontiguousarray(R_i_j), np.ascontiguousarray(t_i_j), residual, J)
+    return residual, J
 
 
 def pose_prior_error(R: np.ndarray, t: np.ndarray, R_prior: np.ndarray, t_prior: np.ndarray) -> tuple[np.ndarray, Blocks]:

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from backend.geometry.so3 import log_one, right_jacobian_inv_one
+
 
 @numba.njit(cache=True, nogil=True)
 def point_reprojection(fx, fy, cx, cy, p_world_l, J_world_l, landmark, R_world_camera, t_world_camera, pose, offset, uv, residual, J, depth):  # noqa: ANN001
@@ -328,3 +330,47 @@ def line_on_plane(n_backprojection, n_world, d_world, B_plane, R_world_anchor, t
                 J[p, 3 + i, 6 + b] = av
             J[p, i, 8] = -NN[i]
             J[p, 3 + i, 8] = 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def relative_pose(R_world_camera, t_world_camera, i_index, j_index, R_i_j, t_i_j, residual, J):  # noqa: ANN001
+    """Odometry residual (M, 6) and Jacobian (M, 6, 12) w.r.t. [pose i | pose j]; formulas in
+    :func:`backend.optim.factors.relative_pose_error`."""
+    E = np.empty((3, 3))
+    W = np.empty((3, 3))
+    Jr = np.empty((3, 3))
+    r = np.empty(3)
+    for m in range(i_index.shape[0]):
+        Ri = R_world_camera[i_index[m]]
+        Rj = R_world_camera[j_index[m]]
+        Rm = R_i_j[m]
+        for a in range(3):  # W = R_iᵀ R_j, E = R_ijᵀ W
+            for b in range(3):
+                W[a, b] = Ri[0, a] * Rj[0, b] + Ri[1, a] * Rj[1, b] + Ri[2, a] * Rj[2, b]
+        for a in range(3):
+            for b in range(3):
+                E[a, b] = Rm[0, a] * W[0, b] + Rm[1, a] * W[1, b] + Rm[2, a] * W[2, b]
+        log_one(E, r)
+        right_jacobian_inv_one(r, Jr)
+        d0 = t_world_camera[j_index[m], 0] - t_world_camera[i_index[m], 0]
+        d1 = t_world_camera[j_index[m], 1] - t_world_camera[i_index[m], 1]
+        d2 = t_world_camera[j_index[m], 2] - t_world_camera[i_index[m], 2]
+        p0 = Ri[0, 0] * d0 + Ri[1, 0] * d1 + Ri[2, 0] * d2  # R_iᵀ (t_j - t_i)
+        p1 = Ri[0, 1] * d0 + Ri[1, 1] * d1 + Ri[2, 1] * d2
+        p2 = Ri[0, 2] * d0 + Ri[1, 2] * d1 + Ri[2, 2] * d2
+        residual[m, 0], residual[m, 1], residual[m, 2] = r[0], r[1], r[2]
+        residual[m, 3] = p0 - t_i_j[m, 0]
+        residual[m, 4] = p1 - t_i_j[m, 1]
+        residual[m, 5] = p2 - t_i_j[m, 2]
+        J[m, :, :] = 0.0
+        for a in range(3):
+            for b in range(3):
+                J[m, a, 6 + b] = Jr[a, b]
+                # -J_r⁻¹ R_jᵀ R_i = -J_r⁻¹ Wᵀ
+                J[m, a, b] = -(Jr[a, 0] * W[b, 0] + Jr[a, 1] * W[b, 1] + Jr[a, 2] * W[b, 2])
+                J[m, 3 + a, 3 + b] = -Ri[b, a]
+                J[m, 3 + a, 9 + b] = Ri[b, a]
+        # [R_iᵀ (t_j - t_i)]_×
+        J[m, 3, 1], J[m, 3, 2] = -p2, p1
+        J[m, 4, 0], J[m, 4, 2] = p2, -p0
+        J[m, 5, 0], J[m, 5, 1] = -p1, p0

@@ -448,9 +448,9 @@ class Problem:
         # Odometry and prior.
         od = d.odometry
         if od is not None and len(od.i):
-            res, J = factors.relative_pose_error(poses.R_world_camera[od.i], poses.t_world_camera[od.i], poses.R_world_camera[od.j], poses.t_world_camera[od.j], od.R_i_j, od.t_i_j)
+            res, J = factors.relative_pose_error(poses.R_world_camera, poses.t_world_camera, od.i, od.j, od.R_i_j, od.t_i_j)
             scale = np.array([1 / od.sigma_rot] * 3 + [1 / od.sigma_pos] * 3)
-            asm.add("odometry", res * scale, np.concatenate([J["i"], J["j"]], axis=2) * scale[:, None], [(L.pose_col[od.i], 6), (L.pose_col[od.j], 6)])
+            asm.add("odometry", res * scale, J * scale[:, None], [(L.pose_col[od.i], 6), (L.pose_col[od.j], 6)])
         pr = d.prior
         if pr is not None and len(pr.index):
             res, J = factors.pose_prior_error(poses.R_world_camera[pr.index], poses.t_world_camera[pr.index], pr.R_world_camera, pr.t_world_camera)
