@@ -46,16 +46,22 @@ def _exp_kernel(w, out):  # noqa: ANN001
         else:
             a = np.sin(theta) / theta
             b = (1.0 - np.cos(theta)) / t2
-        # I + a K + b K², with K² = w wᵀ - θ² I.
-        out[n, 0, 0] = 1.0 + b * (x * x - t2)
-        out[n, 1, 1] = 1.0 + b * (y * y - t2)
-        out[n, 2, 2] = 1.0 + b * (z * z - t2)
-        out[n, 0, 1] = -a * z + b * x * y
-        out[n, 1, 0] = a * z + b * x * y
-        out[n, 0, 2] = a * y + b * x * z
-        out[n, 2, 0] = -a * y + b * x * z
-        out[n, 1, 2] = -a * x + b * y * z
-        out[n, 2, 1] = a * x + b * y * z
+        _identity_plus(x, y, z, a, b, out[n])
+
+
+@numba.njit(cache=True, nogil=True)
+def _identity_plus(x, y, z, a, b, out):  # noqa: ANN001, ANN202
+    """out (3, 3) = I + a K + b K² for K = [w]_×, w = (x, y, z); K² = w wᵀ - |w|² I."""
+    t2 = x * x + y * y + z * z
+    out[0, 0] = 1.0 + b * (x * x - t2)
+    out[1, 1] = 1.0 + b * (y * y - t2)
+    out[2, 2] = 1.0 + b * (z * z - t2)
+    out[0, 1] = -a * z + b * x * y
+    out[1, 0] = a * z + b * x * y
+    out[0, 2] = a * y + b * x * z
+    out[2, 0] = -a * y + b * x * z
+    out[1, 2] = -a * x + b * y * z
+    out[2, 1] = a * x + b * y * z
 
 
 def exp(w: np.ndarray) -> np.ndarray:
@@ -136,16 +142,7 @@ def right_jacobian_inv_one(w, out):  # noqa: ANN001
         c = 1.0 / 12.0 + t2 / 720.0
     else:
         c = 1.0 / t2 - (1.0 + np.cos(theta)) / (2.0 * theta * np.sin(theta))
-    # I + ½ K + c K², with K² = w wᵀ - θ² I.
-    out[0, 0] = 1.0 + c * (x * x - t2)
-    out[1, 1] = 1.0 + c * (y * y - t2)
-    out[2, 2] = 1.0 + c * (z * z - t2)
-    out[0, 1] = -0.5 * z + c * x * y
-    out[1, 0] = 0.5 * z + c * x * y
-    out[0, 2] = 0.5 * y + c * x * z
-    out[2, 0] = -0.5 * y + c * x * z
-    out[1, 2] = -0.5 * x + c * y * z
-    out[2, 1] = 0.5 * x + c * y * z
+    _identity_plus(x, y, z, 0.5, c, out)
 
 
 def right_jacobian_inv(w: np.ndarray) -> np.ndarray:
