@@ -10,7 +10,6 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from backend.geometry import so3
 
 
 @numba.njit(cache=True, nogil=True)

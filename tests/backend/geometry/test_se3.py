@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import gtsam
 import numpy as np
 
 from backend.geometry import so3
