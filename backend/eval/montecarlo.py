@@ -17,6 +17,7 @@ from backend.geometry import line as line_geo
 from backend.geometry import plane as plane_geo
 from backend.geometry import so3
 from backend.geometry.se3 import Poses
+from backend.mapping.triangulation import triangulate_lines, triangulate_points
 from backend.optim.problem import VARIANTS, Observations, Odometry, PosePrior, ProblemData, build_problem
 from backend.optim.solver import SolveReport, optimize
 
@@ -34,37 +35,6 @@ class NoiseModel:
     pixel: float = SIGMA_PX
     rotation_rad: float = SIGMA_ROT_RAD
     position_m: float = SIGMA_POS_M
-
-
-def _triangulate_points(x_norm: list[np.ndarray], poses: list[np.ndarray], R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Linear (DLT) triangulation of each point from normalized observations."""
-    out = np.empty((len(x_norm), 3))
-    for i, (x, k) in enumerate(zip(x_norm, poses)):
-        Rt = np.swapaxes(R[k], 1, 2)
-        P = np.concatenate([Rt, -np.einsum("nij,nj->ni", Rt, t[k])[:, :, None]], axis=2)  # (n, 3, 4)
-        A = np.concatenate([x[:, 0:1] * P[:, 2] - P[:, 0], x[:, 1:2] * P[:, 2] - P[:, 1]], axis=0)
-        _, _, Vt = np.linalg.svd(A)
-        X = Vt[-1]
-        out[i] = X[:3] / X[3] if abs(X[3]) > 1e-12 else np.full(3, np.nan)
-    return out
-
-
-def _triangulate_lines(x_start: np.ndarray, x_end: np.ndarray, landmark: np.ndarray, pose: np.ndarray, n_lines: int, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Plücker (m, v) of each line from all its views: every observation gives a world
-    back-projection plane `π_k = (N, -N·t_k)`; the homogeneous points X with `π_k·X ≈ 0` for
-    all k form the near-null space of the stacked planes, spanned by two points A, B of the
-    line (the DLT of lines): `v = a₄ b - b₄ a`, `m = a × b`."""
-    N = so3.cross(x_start, x_end)
-    N = np.einsum("mij,mj->mi", R[pose], N / np.linalg.norm(N, axis=1, keepdims=True))
-    planes = np.concatenate([N, -np.sum(N * t[pose], axis=1, keepdims=True)], axis=1)
-    m = np.empty((n_lines, 3))
-    v = np.empty((n_lines, 3))
-    for i in range(n_lines):  # setup only, not timed
-        _, _, Vt = np.linalg.svd(planes[landmark == i])
-        A, B = Vt[-1], Vt[-2]
-        v[i] = A[3] * B[:3] - B[3] * A[:3]
-        m[i] = so3.cross(A[:3], B[:3])
-    return m, v
 
 
 def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise: NoiseModel = NoiseModel()) -> ProblemData:
@@ -98,7 +68,7 @@ def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise
     order = np.argsort(p_idx, kind="stable")
     splits = np.cumsum(np.bincount(p_idx, minlength=len(pts)))[:-1]
     x_all = cam.normalize(point_obs.uv[order])
-    X = _triangulate_points(np.split(x_all, splits), np.split(k_idx[order], splits), R_init, t_init)
+    X = triangulate_points(np.split(x_all, splits), np.split(k_idx[order], splits), R_init, t_init)
     p_anchor = np.einsum("nji,nj->ni", R_init[point_anchor], X - t_init[point_anchor])
     rho = 1.0 / p_anchor[:, 2]
     bad = ~np.isfinite(rho) | (rho <= 0)
@@ -111,7 +81,7 @@ def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise
     line_obs = Observations(landmark=l_idx, pose=k_l, uv=seg_uv, offset=np.zeros((len(k_l), 3)))
     line_anchor = np.argmax(ok_l[:, lines], axis=0)
     line_anchor_uv = np.concatenate([uv_s_noisy[line_anchor, lines], uv_e_noisy[line_anchor, lines]], axis=1)
-    m, v = _triangulate_lines(cam.normalize(seg_uv[:, :2]), cam.normalize(seg_uv[:, 2:]), l_idx, k_l, len(lines), R_init, t_init)
+    m, v, _ = triangulate_lines(cam.normalize(seg_uv[:, :2]), cam.normalize(seg_uv[:, 2:]), l_idx, k_l, len(lines), R_init, t_init)
     line_U, line_phi = line_geo.to_orthonormal(m, v)
 
     # Planes: least-squares fit to the triangulated points of each wall.

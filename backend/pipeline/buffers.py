@@ -1,0 +1,44 @@
+"""Append-only row buffers whose prefixes are shared, read-only, between snapshots."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class RowBuffer:
+    """Rows of shape `row_shape` appended one at a time (amortized O(1)).
+
+    :meth:`prefix` returns a read-only view without copying. The owner promises never to
+    write a row that an earlier prefix covers *after* that prefix was taken (for poses:
+    only the sliding window, which lies beyond every earlier frozen prefix, is written).
+    Growth allocates a new array, so views of the old one stay valid.
+    """
+
+    def __init__(self, row_shape: tuple[int, ...], *, dtype: type = float, capacity: int = 64) -> None:
+        self._data = np.zeros((capacity, *row_shape), dtype=dtype)
+        self._n = 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, row: np.ndarray) -> int:
+        """Append a row; returns its index."""
+        if self._n == len(self._data):
+            grown = np.zeros((2 * len(self._data), *self._data.shape[1:]), dtype=self._data.dtype)
+            grown[: self._n] = self._data[: self._n]
+            self._data = grown
+        self._data[self._n] = row
+        self._n += 1
+        return self._n - 1
+
+    def __getitem__(self, index: object) -> np.ndarray:
+        return self._data[: self._n][index]
+
+    def __setitem__(self, index: object, value: np.ndarray) -> None:
+        self._data[: self._n][index] = value
+
+    def prefix(self, n: int) -> np.ndarray:
+        """Read-only view of rows [0, n)."""
+        view = self._data[:n]
+        view.setflags(write=False)
+        return view

@@ -1,0 +1,169 @@
+"""Snapshots: one immutable record per keyframe step (DESIGN §6), all the viewer draws.
+
+Arrays inside a snapshot are read-only. Poses that left the window never change again, so
+consecutive snapshots share them (a read-only view of an append-only buffer) instead of
+copying the whole trajectory: keeping hundreds of snapshots stays cheap.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from backend.optim.structure import HessianStructure
+
+# Landmark states with respect to the last plane detection (RANSAC of paper Eq. 4).
+NOT_TESTED = 0
+INLIER = 1
+OUTLIER = 2
+
+
+def frozen(array: np.ndarray) -> np.ndarray:
+    """A read-only view of `array` (no copy)."""
+    view = np.asarray(array).view()
+    view.setflags(write=False)
+    return view
+
+
+@dataclasses.dataclass(frozen=True)
+class Trajectory:
+    """Keyframe poses `T_world_camera` (metres, world z up) in keyframe order, timestamps in
+    nanoseconds. Stored as read-only chunks `(timestamp_ns, R (n, 3, 3), t (n, 3))`: a
+    prefix shared with earlier snapshots and a copied tail."""
+
+    chunks: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]
+
+    @staticmethod
+    def of(timestamp_ns: np.ndarray, R_world_camera: np.ndarray, t_world_camera: np.ndarray) -> "Trajectory":
+        return Trajectory(((frozen(timestamp_ns), frozen(R_world_camera), frozen(t_world_camera)),))
+
+    def __len__(self) -> int:
+        return sum(int(c[2].shape[0]) for c in self.chunks)
+
+    def _joined(self, i: int) -> np.ndarray:
+        return frozen(np.concatenate([c[i] for c in self.chunks])) if len(self.chunks) != 1 else self.chunks[0][i]
+
+    @property
+    def timestamp_ns(self) -> np.ndarray:
+        return self._joined(0)
+
+    @property
+    def R_world_camera(self) -> np.ndarray:
+        return self._joined(1)
+
+    @property
+    def t_world_camera(self) -> np.ndarray:
+        return self._joined(2)
+
+
+@dataclasses.dataclass(frozen=True)
+class PointLandmarks:
+    """Triangulated points: world positions (m), plane id (-1: none), anchor keyframe, and
+    the state of the last detection that tested them (NOT_TESTED / INLIER / OUTLIER)."""
+
+    id: np.ndarray          # (P,) stable landmark ids
+    p_world: np.ndarray     # (P, 3)
+    plane: np.ndarray       # (P,)
+    anchor: np.ndarray      # (P,) keyframe index
+    detection: np.ndarray   # (P,) uint8
+
+    def __len__(self) -> int:
+        return int(self.id.shape[0])
+
+
+@dataclasses.dataclass(frozen=True)
+class LineLandmarks:
+    """Triangulated lines as world segments (m): the points of the infinite line nearest
+    the anchor observation's endpoint rays. Other fields as for points."""
+
+    id: np.ndarray
+    segment_world: np.ndarray  # (L, 2, 3)
+    plane: np.ndarray
+    anchor: np.ndarray
+    detection: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.id.shape[0])
+
+
+@dataclasses.dataclass(frozen=True)
+class PlaneLandmark:
+    """A plane `n·X + d = 0` (world, m), the convex hull of its inliers in the plane
+    (world vertices, counter-clockwise seen from +n) and the consensus of its last RANSAC
+    detection: inlier fraction and the number of candidates tested."""
+
+    id: int
+    n: np.ndarray           # (3,)
+    d: float
+    hull_world: np.ndarray  # (H, 3)
+    n_points: int
+    n_lines: int
+    last_consensus: float
+    last_candidates: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Detection:
+    """The co-planar detection run on the step's keyframe: one entry per candidate set."""
+
+    instance: tuple[int, ...]   # segmentation instance label of each candidate set
+    candidates: tuple[int, ...]
+    inliers: tuple[int, ...]
+    accepted: tuple[bool, ...]
+    plane: tuple[int, ...]      # plane id it merged into or created (-1: rejected / skipped)
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizationReport:
+    """The window solve: variant, iterations, costs (½ Σ whitened residual², unitless), and
+    wall time per stage in milliseconds."""
+
+    variant: str
+    method: str
+    iterations: int
+    initial_cost: float
+    final_cost: float
+    converged: bool
+    items: int
+    params: int
+    window: int
+    fixed_poses: int
+    timing_ms: dict[str, float]
+
+
+@dataclasses.dataclass(frozen=True)
+class Metrics:
+    """Running trajectory error over all keyframes so far (cm): RMSE without alignment (the
+    gauge is fixed) and ATE after SE(3) alignment. NaN where no ground truth is known."""
+
+    rmse_cm: float
+    ate_cm: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Snapshot:
+    """Everything about one keyframe step. `keyframe` is the index of the newest keyframe;
+    `window` are the keyframe indices optimized in this step."""
+
+    keyframe: int
+    timestamp_ns: int
+    source: str
+    estimate: Trajectory
+    ground_truth: Trajectory | None
+    window: np.ndarray      # (W,) keyframe indices, ascending
+    points: PointLandmarks
+    lines: LineLandmarks
+    planes: tuple[PlaneLandmark, ...]
+    detection: Detection
+    report: OptimizationReport
+    hessian: HessianStructure | None
+    metrics: Metrics
+    message: str = ""
+
+    @property
+    def variant(self) -> str:
+        return self.report.variant
+
+    def plane_by_id(self) -> dict[int, PlaneLandmark]:
+        return {p.id: p for p in self.planes}
