@@ -645,7 +645,7 @@ class SimEngine:
         rmse = 100.0 * translational_rmse(t_est, gt.t_world_camera)
         ate = 100.0 * ate_rmse(t_est, gt.t_world_camera, align="se3") if n >= 3 else rmse
         return Snapshot(
-            keyframe=k, timestamp_ns=int(self._stamp[k]), source=self.source, estimate=estimate, ground_truth=gt,
+            keyframe=k, timestamp_ns=int(self._stamp[k]), source=self.source, camera=self._world.camera, estimate=estimate, ground_truth=gt,
             window=frozen(np.arange(w0, n)), points=points, lines=lines, planes=tuple(planes), detection=detection,
             report=report, hessian=hessian, metrics=Metrics(rmse_cm=rmse, ate_cm=ate),
         )

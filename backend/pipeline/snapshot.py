@@ -11,6 +11,7 @@ import dataclasses
 
 import numpy as np
 
+from backend.geometry.camera import PinholeCamera
 from backend.optim.structure import HessianStructure
 
 # Landmark states with respect to the last plane detection (RANSAC of paper Eq. 4).
@@ -149,6 +150,7 @@ class Snapshot:
     keyframe: int
     timestamp_ns: int
     source: str
+    camera: PinholeCamera   # the (left) camera of every keyframe
     estimate: Trajectory
     ground_truth: Trajectory | None
     window: np.ndarray      # (W,) keyframe indices, ascending

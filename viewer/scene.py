@@ -1,0 +1,178 @@
+"""Draw a snapshot into a viser scene: keyframe frustums, trajectories, points, segments,
+planes and the RANSAC consensus of the last detection. World frame, metres, z up.
+
+Every layer is one scene node (frustums are one set of line segments), so a step costs a
+handful of messages whatever the number of keyframes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import viser
+
+from backend.export.palette import plane_color
+from backend.geometry.camera import PinholeCamera
+from backend.pipeline.snapshot import INLIER, OUTLIER, Snapshot
+
+FRUSTUM_DEPTH_M = 0.25
+INFINITE_PLANE_SIZE_M = 30.0
+COLOR_KEYFRAME = (150, 150, 150)
+COLOR_WINDOW = (255, 160, 0)
+COLOR_CURRENT = (220, 0, 0)
+COLOR_ESTIMATE = (30, 90, 220)
+COLOR_GROUND_TRUTH = (20, 20, 20)
+COLOR_INLIER = (0, 200, 0)
+COLOR_OUTLIER = (255, 0, 0)
+
+
+@dataclasses.dataclass
+class Layers:
+    """Which layers are visible."""
+
+    points: bool = True
+    lines: bool = True
+    planes: bool = True
+    infinite_planes: bool = False
+    inliers: bool = True
+    ground_truth: bool = True
+    cameras: bool = True
+
+
+# Scene node name -> the layer that controls its visibility.
+NODE_LAYER = {
+    "/map/points": "points",
+    "/map/lines": "lines",
+    "/map/planes": "planes",
+    "/map/infinite_planes": "infinite_planes",
+    "/map/inliers": "inliers",
+    "/map/outliers": "inliers",
+    "/map/inlier_lines": "inliers",
+    "/map/outlier_lines": "inliers",
+    "/trajectory/ground_truth": "ground_truth",
+    "/cameras": "cameras",
+}
+
+
+def frustum_segments(R_world_camera: np.ndarray, t_world_camera: np.ndarray, camera: PinholeCamera, *, depth: float = FRUSTUM_DEPTH_M) -> np.ndarray:
+    """Wireframe (K * 8, 2, 3) of K camera frustums: four edges from the centre to the image
+    corners at `depth` metres, and the image rectangle."""
+    u = np.array([0.0, camera.width, camera.width, 0.0])
+    v = np.array([0.0, 0.0, camera.height, camera.height])
+    corners_c = depth * np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones(4)], axis=1)  # (4, 3)
+    corners_w = np.einsum("kij,cj->kci", R_world_camera, corners_c) + t_world_camera[:, None, :]  # (K, 4, 3)
+    centre = np.repeat(t_world_camera[:, None, :], 4, axis=1)
+    rays = np.stack([centre, corners_w], axis=2)
+    rect = np.stack([corners_w, np.roll(corners_w, -1, axis=1)], axis=2)
+    return np.concatenate([rays, rect], axis=1).reshape(-1, 2, 3)
+
+
+def polyline_segments(p: np.ndarray) -> np.ndarray:
+    """Consecutive points (N, 3) as segments (N - 1, 2, 3)."""
+    return np.stack([p[:-1], p[1:]], axis=1) if len(p) >= 2 else np.zeros((0, 2, 3))
+
+
+def plane_quad(n: np.ndarray, d: float, centre: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """A square (4 vertices, 2 faces) of side `size` on plane (n, d), centred at the
+    projection of `centre`."""
+    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    b1 = np.cross(n, a)
+    b1 /= np.linalg.norm(b1)
+    b2 = np.cross(n, b1)
+    c = centre - (n @ centre + d) * n
+    h = 0.5 * size
+    verts = np.stack([c - h * b1 - h * b2, c + h * b1 - h * b2, c + h * b1 + h * b2, c - h * b1 + h * b2])
+    return verts, np.array([[0, 1, 2], [0, 2, 3]])
+
+
+class SceneView:
+    """Owns the scene nodes of the map; :meth:`draw` replaces them with a snapshot's."""
+
+    def __init__(self, server: viser.ViserServer, *, layers: Layers | None = None) -> None:
+        self._server = server
+        self.layers = layers or Layers()
+        self._handles: dict[str, viser.SceneNodeHandle] = {}
+        server.scene.set_up_direction("+z")
+        server.initial_camera.position = (-4.5, -7.0, 6.5)
+        server.initial_camera.look_at = (0.0, 0.0, 0.0)
+        server.scene.add_grid("/world/grid", width=12.0, height=12.0, plane="xy", cell_size=0.5, section_size=1.0)
+        server.scene.add_frame("/world/axes", axes_length=0.5, axes_radius=0.015)
+
+    def _visible(self, name: str) -> bool:
+        layer = next((v for k, v in NODE_LAYER.items() if name.startswith(k)), None)
+        return True if layer is None else bool(getattr(self.layers, layer))
+
+    def set_layer(self, layer: str, visible: bool) -> None:
+        """Show or hide a layer (a field of :class:`Layers`)."""
+        setattr(self.layers, layer, visible)
+        for name, handle in self._handles.items():
+            handle.visible = self._visible(name)
+
+    def _keep(self, name: str, handle: viser.SceneNodeHandle | None) -> None:
+        old = self._handles.pop(name, None)
+        if handle is None:
+            if old is not None:
+                old.remove()
+            return
+        self._handles[name] = handle
+
+    def _segments(self, name: str, segments: np.ndarray, colors: np.ndarray | tuple[int, int, int], *, thickness: float) -> None:
+        if len(segments) == 0:
+            self._keep(name, None)
+            return
+        cols = np.broadcast_to(np.asarray(colors, dtype=np.uint8).reshape(-1, 1, 3), (len(segments), 2, 3)) if np.ndim(colors) > 1 else colors
+        handle = self._server.scene.add_line_segments(name, segments.astype(np.float32), cols, thickness=thickness, thickness_units="screen", visible=self._visible(name))
+        self._keep(name, handle)
+
+    def _points(self, name: str, p: np.ndarray, colors: np.ndarray | tuple[int, int, int], *, size: float) -> None:
+        if len(p) == 0:
+            self._keep(name, None)
+            return
+        handle = self._server.scene.add_point_cloud(name, p.astype(np.float32), colors, point_size=size, point_shape="circle", precision="float32", visible=self._visible(name))
+        self._keep(name, handle)
+
+    def draw(self, snapshot: Snapshot) -> None:
+        """Replace the drawn map with `snapshot`'s (call inside `server.atomic()`)."""
+        est = snapshot.estimate
+        R, t = est.R_world_camera, est.t_world_camera
+        # Cameras: all keyframes grey, the window orange, the newest red.
+        frusta = frustum_segments(R, t, snapshot.camera)
+        kind = np.zeros(len(t), int)
+        kind[snapshot.window] = 1
+        kind[snapshot.keyframe] = 2
+        palette = np.array([COLOR_KEYFRAME, COLOR_WINDOW, COLOR_CURRENT], dtype=np.uint8)
+        self._segments("/cameras/frustums", frusta, np.repeat(palette[kind], 8, axis=0), thickness=1.5)
+        self._segments("/trajectory/estimate", polyline_segments(t), COLOR_ESTIMATE, thickness=2.0)
+        gt = snapshot.ground_truth
+        self._segments("/trajectory/ground_truth", polyline_segments(gt.t_world_camera) if gt is not None else np.zeros((0, 2, 3)), COLOR_GROUND_TRUTH, thickness=1.5)
+
+        pts, lns = snapshot.points, snapshot.lines
+        finite = np.all(np.isfinite(pts.p_world), axis=1)
+        self._points("/map/points", pts.p_world[finite], plane_color(pts.plane[finite]), size=0.06)
+        seg_ok = np.all(np.isfinite(lns.segment_world.reshape(-1, 6)), axis=1)
+        self._segments("/map/lines", lns.segment_world[seg_ok], plane_color(lns.plane[seg_ok]), thickness=3.0)
+        # RANSAC consensus of the last detection: inliers green, outliers red (drawn larger).
+        for state, name, color in ((INLIER, "inliers", COLOR_INLIER), (OUTLIER, "outliers", COLOR_OUTLIER)):
+            self._points(f"/map/{name}", pts.p_world[finite & (pts.detection == state)], color, size=0.10)
+            self._segments(f"/map/{name[:-1]}_lines", lns.segment_world[seg_ok & (lns.detection == state)], color, thickness=6.0)
+
+        # Planes: the hull of the inliers (a triangle fan) and an optional large quad.
+        names = set()
+        for plane in snapshot.planes:
+            color = tuple(int(c) for c in plane_color(plane.id))
+            hull = plane.hull_world
+            if len(hull) >= 3:
+                name = f"/map/planes/{plane.id}"
+                faces = np.stack([np.zeros(len(hull) - 2, int), np.arange(1, len(hull) - 1), np.arange(2, len(hull))], axis=1)
+                self._keep(name, self._server.scene.add_mesh_simple(name, hull.astype(np.float32), faces, color=color, opacity=0.45, material="toon3", side="double", cast_shadow=False, receive_shadow=False, visible=self._visible(name)))
+                names.add(name)
+                centre = hull.mean(axis=0)
+            else:
+                centre = -plane.d * plane.n
+            name = f"/map/infinite_planes/{plane.id}"
+            verts, faces = plane_quad(plane.n, plane.d, centre, INFINITE_PLANE_SIZE_M)
+            self._keep(name, self._server.scene.add_mesh_simple(name, verts.astype(np.float32), faces, color=color, opacity=0.12, material="toon3", side="double", cast_shadow=False, receive_shadow=False, visible=self._visible(name)))
+            names.add(name)
+        for name in [n for n in self._handles if n.startswith(("/map/planes/", "/map/infinite_planes/")) and n not in names]:
+            self._keep(name, None)
