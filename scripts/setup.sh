@@ -6,6 +6,18 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 
+# --chromium: only make sure Debian's Chromium is there (the browser tests drive it).
+if [ "${1:-}" = "--chromium" ]; then
+  if [ -x /usr/bin/chromium ]; then exit 0; fi
+  if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = "0" ]; then
+    echo "installing chromium (Debian) for the browser tests" >&2
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+    exit 0
+  fi
+  echo "cannot install chromium: needs apt-get and root" >&2
+  exit 1
+fi
+
 extras=""
 if [ "${1:-}" = "--test" ]; then extras="[test]"; fi
 

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# Runs the test suite: installs coplanar with its test tools where missing, then pytest.
+# Runs the test suite: installs coplanar with its test tools and Debian's Chromium (for the
+# browser tests) where missing, then pytest.
 # Extra arguments go to pytest.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/scripts/setup.sh" --test
+bash "$root/scripts/setup.sh" --chromium || echo "warning: Chromium could not be installed: the browser tests will skip" >&2
 cd "$root"
 exec .venv/bin/python -m pytest tests "$@"

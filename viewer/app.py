@@ -95,6 +95,14 @@ class Debugger:
             self.reset_button = gui.add_button("Reset")
             self.slider = gui.add_slider("Keyframe", min=0, max=1, step=1, initial_value=0, disabled=True)
             self.keyframe_label = gui.add_text("Shown", initial_value="none", disabled=True)
+        with gui.add_folder("Hessian"):
+            self.hessian_legend = gui.add_markdown("no window optimized yet")
+            self.hessian_image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
+            self.compare_box = gui.add_checkbox("Compare -wo | -r | -w", initial_value=self.settings.compare)
+            self.compare_image = gui.add_image(images.blank(), label="same window, three parametrizations", format="png")
+        with gui.add_folder("Report"):
+            self.report = gui.add_markdown("")
+
         with gui.add_folder("Layers"):
             self.layer_boxes = {
                 name: gui.add_checkbox(label, initial_value=getattr(self.scene.layers, name))
@@ -105,14 +113,6 @@ class Debugger:
             }
         with gui.add_folder("Export"):
             self.export_button = gui.add_button("Download map (PLY)")
-        with gui.add_folder("Hessian"):
-            self.hessian_legend = gui.add_markdown("no window optimized yet")
-            self.hessian_image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
-            self.compare_box = gui.add_checkbox("Compare -wo | -r | -w", initial_value=self.settings.compare)
-            self.compare_image = gui.add_image(images.blank(), label="same window, three parametrizations", format="png")
-        with gui.add_folder("Report"):
-            self.report = gui.add_markdown("")
-
         self.step_button.on_click(lambda _: self._commands.put(("step", None)))
         self.reset_button.on_click(lambda _: self._commands.put(("reset", None)))
 

@@ -94,7 +94,7 @@ class SceneView:
         self.layers = layers or Layers()
         self._handles: dict[str, viser.SceneNodeHandle] = {}
         server.scene.set_up_direction("+z")
-        server.initial_camera.position = (-4.5, -7.0, 6.5)
+        server.initial_camera.position = (-3.2, -5.2, 4.6)
         server.initial_camera.look_at = (0.0, 0.0, 0.0)
         server.scene.add_grid("/world/grid", width=12.0, height=12.0, plane="xy", cell_size=0.5, section_size=1.0)
         server.scene.add_frame("/world/axes", axes_length=0.5, axes_radius=0.015)

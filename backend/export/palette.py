@@ -6,11 +6,12 @@ import numpy as np
 
 NON_PLANAR = np.array([170, 170, 170], dtype=np.uint8)
 #: Distinct colours for plane ids (cycled).
+#: Distinct colours for plane ids (cycled); no pure red or green, which mark RANSAC
+#: outliers and inliers in the viewer.
 PLANE_COLORS = np.array(
     [
-        [230, 25, 75], [60, 180, 75], [0, 130, 200], [245, 130, 48], [145, 30, 180],
-        [70, 240, 240], [240, 50, 230], [210, 245, 60], [0, 128, 128], [170, 110, 40],
-        [128, 0, 0], [0, 0, 128],
+        [0, 130, 200], [245, 130, 48], [145, 30, 180], [0, 150, 150], [170, 110, 40],
+        [240, 50, 230], [128, 128, 0], [0, 0, 128], [70, 200, 240], [250, 190, 120],
     ],
     dtype=np.uint8,
 )

@@ -1,0 +1,76 @@
+"""Browser tests: Playwright drives Debian's Chromium (headless, software WebGL) against a
+debugger served in-process on a free port. `scripts/test.sh` installs Chromium where
+missing; without it these tests skip with the reason."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import re
+import socket
+from collections.abc import Iterator
+
+import pytest
+
+CHROMIUM = pathlib.Path(os.environ.get("COPLANAR_CHROMIUM", "/usr/bin/chromium"))
+FLAGS = [
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+]
+TIMEOUT_MS = 60_000
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[object]:
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is missing: run `bash scripts/test.sh` as root to install Debian's chromium")
+    playwright_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e .[test])")
+    with playwright_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
+        yield b
+        b.close()
+
+
+def start_debugger(*, sequence: str = "a", **engine_options: object):  # noqa: ANN201
+    """A debugger on a free port over the Monte-Carlo engine, with the HDRI off (it stalls
+    software rendering)."""
+    from backend.pipeline.sim_engine import SimEngine, SimSettings
+    from viewer.app import Debugger
+
+    debugger = Debugger(SimEngine(SimSettings(sequence=sequence, **engine_options)), port=free_port())
+    debugger.server.scene.configure_environment_map(hdri=None)
+    return debugger
+
+
+@pytest.fixture
+def debugger() -> Iterator[object]:
+    d = start_debugger()
+    yield d
+    d.stop()
+
+
+def open_page(browser, debugger, *, height: int = 900):  # noqa: ANN001, ANN201
+    page = browser.new_page(viewport={"width": 1400, "height": height}, accept_downloads=True)
+    page.set_default_timeout(TIMEOUT_MS)
+    page.goto(f"http://127.0.0.1:{debugger.port}/")
+    page.get_by_role("button", name="Step").wait_for()
+    return page
+
+
+def field(page, label: str):  # noqa: ANN001, ANN201
+    """The input of the GUI row labelled `label` (viser rows: a label and an input)."""
+    lab = page.locator("label").filter(has_text=re.compile(f"^{re.escape(label)}$"))
+    return lab.locator("xpath=ancestor::div[contains(@class,'mantine-Flex-root')][1]").locator("input:not([type=hidden])").first
+
+
+def wait_shown(page, text: str) -> None:  # noqa: ANN001
+    """Wait until the 'Shown' field (updated last in every scene update) reads `text`."""
+    from playwright.sync_api import expect
+
+    expect(field(page, "Shown")).to_have_value(text, timeout=TIMEOUT_MS)
