@@ -235,18 +235,21 @@ class Debugger:
         self._update_compare()
 
     def _show(self, snapshot: Snapshot) -> None:
+        """Draw a snapshot: the scene first (its label last, so a client that sees the label
+        has the whole scene), then the panels, which cost more to encode."""
         with self.server.atomic():
             self.scene.draw(snapshot)
+            self.keyframe_label.value = f"{snapshot.keyframe} ({snapshot.variant})"
+        self.server.flush()
+        self._shown = snapshot
+        with self.server.atomic():
+            if self.variant.value != snapshot.variant:
+                self.variant.value = snapshot.variant
             if snapshot.hessian is not None:
                 self.hessian_image.image = images.hessian_image(snapshot.hessian)
                 self.hessian_legend.content = images.legend_markdown(snapshot.hessian)
             self.report.content = _report_markdown(snapshot)
-            if self.variant.value != snapshot.variant:
-                self.variant.value = snapshot.variant
-            # Last: a client that sees this label has received the whole scene update.
-            self.keyframe_label.value = f"{snapshot.keyframe} ({snapshot.variant})"
         self.server.flush()
-        self._shown = snapshot
 
     def _update_compare(self) -> None:
         self.compare_image.visible = bool(self.compare_box.value)

@@ -18,6 +18,8 @@ from backend.pipeline.snapshot import INLIER, OUTLIER, Snapshot
 
 FRUSTUM_DEPTH_M = 0.25
 INFINITE_PLANE_SIZE_M = 30.0
+GRID_HALF_M = 6.0
+COLOR_GRID = (205, 205, 205)
 COLOR_KEYFRAME = (150, 150, 150)
 COLOR_WINDOW = (255, 160, 0)
 COLOR_CURRENT = (220, 0, 0)
@@ -68,6 +70,15 @@ def frustum_segments(R_world_camera: np.ndarray, t_world_camera: np.ndarray, cam
     return np.concatenate([rays, rect], axis=1).reshape(-1, 2, 3)
 
 
+def grid_segments(*, half: float, cell: float) -> np.ndarray:
+    """Lines of a square grid on z = 0 from -half to +half metres, `cell` apart."""
+    r = np.arange(-half, half + 0.5 * cell, cell)
+    lo, hi, zero = np.full_like(r, -half), np.full_like(r, half), np.zeros_like(r)
+    along_x = np.stack([np.stack([lo, r, zero], axis=1), np.stack([hi, r, zero], axis=1)], axis=1)
+    along_y = np.stack([np.stack([r, lo, zero], axis=1), np.stack([r, hi, zero], axis=1)], axis=1)
+    return np.concatenate([along_x, along_y])
+
+
 def polyline_segments(p: np.ndarray) -> np.ndarray:
     """Consecutive points (N, 3) as segments (N - 1, 2, 3)."""
     return np.stack([p[:-1], p[1:]], axis=1) if len(p) >= 2 else np.zeros((0, 2, 3))
@@ -96,7 +107,10 @@ class SceneView:
         server.scene.set_up_direction("+z")
         server.initial_camera.position = (-3.2, -5.2, 4.6)
         server.initial_camera.look_at = (0.0, 0.0, 0.0)
-        server.scene.add_grid("/world/grid", width=12.0, height=12.0, plane="xy", cell_size=0.5, section_size=1.0)
+        # Software WebGL (headless, remote desktops) pays per pixel: a grid of lines costs
+        # far less than viser's shader grid, and shadows are off.
+        server.scene.configure_default_lights(cast_shadow=False)
+        server.scene.add_line_segments("/world/grid", grid_segments(half=GRID_HALF_M, cell=1.0).astype(np.float32), COLOR_GRID, thickness=1.0, thickness_units="screen")
         server.scene.add_frame("/world/axes", axes_length=0.5, axes_radius=0.015)
 
     def _visible(self, name: str) -> bool:
@@ -118,18 +132,46 @@ class SceneView:
         self._handles[name] = handle
 
     def _segments(self, name: str, segments: np.ndarray, colors: np.ndarray | tuple[int, int, int], *, thickness: float) -> None:
+        """Line segments (N, 2, 3) with one colour or one per segment (N, 3). An existing
+        node is updated in place (cheaper for the client than a new node)."""
         if len(segments) == 0:
             self._keep(name, None)
             return
-        cols = np.broadcast_to(np.asarray(colors, dtype=np.uint8).reshape(-1, 1, 3), (len(segments), 2, 3)) if np.ndim(colors) > 1 else colors
-        handle = self._server.scene.add_line_segments(name, segments.astype(np.float32), cols, thickness=thickness, thickness_units="screen", visible=self._visible(name))
+        cols = np.broadcast_to(np.asarray(colors, dtype=np.uint8).reshape(-1, 1, 3), (len(segments), 2, 3))
+        handle = self._handles.get(name)
+        if isinstance(handle, viser.LineSegmentsHandle):
+            handle.points = segments.astype(np.float32)
+            handle.colors = np.ascontiguousarray(cols)
+            return
+        handle = self._server.scene.add_line_segments(name, segments.astype(np.float32), np.ascontiguousarray(cols), thickness=thickness, thickness_units="screen", visible=self._visible(name))
         self._keep(name, handle)
 
     def _points(self, name: str, p: np.ndarray, colors: np.ndarray | tuple[int, int, int], *, size: float) -> None:
+        """Points (N, 3) with one colour or one per point (N, 3); updated in place."""
         if len(p) == 0:
             self._keep(name, None)
             return
-        handle = self._server.scene.add_point_cloud(name, p.astype(np.float32), colors, point_size=size, point_shape="circle", precision="float32", visible=self._visible(name))
+        cols = np.ascontiguousarray(np.broadcast_to(np.asarray(colors, dtype=np.uint8).reshape(-1, 3), (len(p), 3)))
+        handle = self._handles.get(name)
+        if isinstance(handle, viser.PointCloudHandle):
+            handle.points = p.astype(np.float32)
+            handle.colors = cols
+            return
+        handle = self._server.scene.add_point_cloud(name, p.astype(np.float32), cols, point_size=size, point_shape="circle", precision="float32", visible=self._visible(name))
+        self._keep(name, handle)
+
+    def _mesh(self, name: str, vertices: np.ndarray, faces: np.ndarray, color: tuple[int, int, int], *, opacity: float) -> None:
+        """A translucent, double-sided, unshadowed mesh; updated in place."""
+        handle = self._handles.get(name)
+        if isinstance(handle, viser.MeshHandle):
+            handle.vertices = vertices.astype(np.float32)
+            handle.faces = faces.astype(np.uint32)
+            handle.color = color
+            return
+        handle = self._server.scene.add_mesh_simple(
+            name, vertices.astype(np.float32), faces, color=color, opacity=opacity, material="toon3", side="double",
+            cast_shadow=False, receive_shadow=False, visible=self._visible(name),
+        )
         self._keep(name, handle)
 
     def draw(self, snapshot: Snapshot) -> None:
@@ -165,14 +207,14 @@ class SceneView:
             if len(hull) >= 3:
                 name = f"/map/planes/{plane.id}"
                 faces = np.stack([np.zeros(len(hull) - 2, int), np.arange(1, len(hull) - 1), np.arange(2, len(hull))], axis=1)
-                self._keep(name, self._server.scene.add_mesh_simple(name, hull.astype(np.float32), faces, color=color, opacity=0.45, material="toon3", side="double", cast_shadow=False, receive_shadow=False, visible=self._visible(name)))
+                self._mesh(name, hull, faces, color, opacity=0.45)
                 names.add(name)
                 centre = hull.mean(axis=0)
             else:
                 centre = -plane.d * plane.n
             name = f"/map/infinite_planes/{plane.id}"
             verts, faces = plane_quad(plane.n, plane.d, centre, INFINITE_PLANE_SIZE_M)
-            self._keep(name, self._server.scene.add_mesh_simple(name, verts.astype(np.float32), faces, color=color, opacity=0.12, material="toon3", side="double", cast_shadow=False, receive_shadow=False, visible=self._visible(name)))
+            self._mesh(name, verts, faces, color, opacity=0.12)
             names.add(name)
         for name in [n for n in self._handles if n.startswith(("/map/planes/", "/map/infinite_planes/")) and n not in names]:
             self._keep(name, None)

@@ -72,7 +72,8 @@ class SimSettings:
     `mislabel`: fraction of observations whose instance label is wrong. `window`: keyframes
     optimized per step; `fixed_horizon`: older keyframes whose observations of window
     landmarks enter as fixed poses. `min_parallax_deg`: smallest ray angle (points) or
-    back-projection plane angle (lines) to triangulate.
+    back-projection plane angle (lines) to triangulate. `min_plane_support`: features of a
+    plane that must be in the window for the plane to be optimized there.
     """
 
     sequence: str = "a"
@@ -85,6 +86,7 @@ class SimSettings:
     odometry_rotation_sigma_rad: float = float(np.deg2rad(0.5))
     odometry_position_sigma_m: float = 0.02
     min_parallax_deg: float = 1.5
+    min_plane_support: int = 10
     max_iterations: int = 10
     method: str = "gn"
     loop: bool = True
@@ -493,8 +495,12 @@ class SimEngine:
         l_local = np.full(len(self._l_ok), -1)
         l_local[lns] = np.arange(len(lns))
 
-        planes = np.unique(np.concatenate([self._p_plane[pts], self._l_plane[lns]]))
-        planes = planes[planes >= 0]
+        # A plane is optimized only with enough of its features in the window; with a few it
+        # would swing freely (its features are then free landmarks here, and the plane
+        # follows its whole support by refitting).
+        owner = np.concatenate([self._p_plane[pts], self._l_plane[lns]])
+        support = np.bincount(owner[owner >= 0], minlength=len(self._plane_n))
+        planes = np.flatnonzero(support >= s.min_plane_support)
         q_local = np.full(len(self._plane_n) + 1, -1)
         q_local[planes] = np.arange(len(planes))
 

@@ -1,0 +1,179 @@
+"""Benchmarks of the debugger served to headless Chromium (issue 3's measurements).
+
+    .venv/bin/python benchmarks/bench_viewer.py latency   # Step click -> updated scene
+    .venv/bin/python benchmarks/bench_viewer.py points    # a 100k-point map
+    .venv/bin/python benchmarks/bench_viewer.py memory    # server RSS over 1000 steps
+
+latency: the debugger on Monte-Carlo sequence a, warmed up by `--warmup` keyframes (the
+window full, the map grown); then `--clicks` clicks on Step, each timed inside the page
+from the click to the moment the "Shown" field changes (the server sets it last, in the
+same atomic update as the scene, so the scene has arrived), and to the next rendered
+animation frame after it.
+
+points: a snapshot whose map holds `--points` points (the real snapshot's other layers
+kept) is drawn and sent; reports the server-side draw time, the time until the browser
+has it, and Step latency while it is shown.
+
+memory: `--steps` engine steps through the debugger (every snapshot drawn, the history
+capped at its default) with one browser tab connected; prints the server's resident set
+size every 100 steps.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import platform  # noqa: E402
+import pathlib  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the browser test helpers
+from tests.browser.conftest import CHROMIUM, FLAGS, open_page, start_debugger, wait_shown  # noqa: E402
+
+# Click Step and wait (in the page) until the "Shown" field differs from its old value;
+# returns [ms to the field change, ms to the next animation frame after it].
+_CLICK_JS = """
+async () => {
+  const label = [...document.querySelectorAll('label')].find(l => l.textContent === 'Shown');
+  const input = label.closest('.mantine-Flex-root').querySelector('input');
+  const button = [...document.querySelectorAll('button')].find(b => b.textContent === 'Step');
+  const old = input.value;
+  const t0 = performance.now();
+  button.click();
+  while (input.value === old) { await new Promise(r => setTimeout(r, 1)); }
+  const t1 = performance.now();
+  await new Promise(r => requestAnimationFrame(() => r()));
+  return [t1 - t0, performance.now() - t0];
+}
+"""
+
+
+def _rss_mib() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _summary(values: list[float]) -> str:
+    v = sorted(values)
+    return f"median {statistics.median(v):.1f} ms, p90 {v[int(0.9 * (len(v) - 1))]:.1f} ms, min {v[0]:.1f}, max {v[-1]:.1f} (n={len(v)})"
+
+
+def _clicks(page, n: int) -> tuple[list[float], list[float]]:  # noqa: ANN001
+    updated, rendered = [], []
+    for _ in range(n):
+        a, b = page.evaluate(_CLICK_JS)
+        updated.append(a)
+        rendered.append(b)
+    return updated, rendered
+
+
+def bench_latency(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
+    debugger = start_debugger(sequence=args.sequence)
+    try:
+        for _ in range(args.warmup):
+            debugger.submit("step")
+        debugger.wait_idle(timeout=300)
+        page = open_page(browser, debugger)
+        wait_shown(page, f"{args.warmup - 1} (PL-w)")
+        _clicks(page, 3)  # warm the page
+        n0 = len(debugger.history)
+        updated, rendered = _clicks(page, args.clicks)
+        totals = [s.report.timing_ms["total"] for s in list(debugger.history)[n0:]]
+        print(f"sequence {args.sequence}, window {debugger.engine.settings.window}, after {args.warmup} keyframes:")
+        print(f"  click -> scene received:  {_summary(updated)}")
+        print(f"  click -> next frame:      {_summary(rendered)}")
+        print(f"  engine step (server):     {_summary(totals)}")
+    finally:
+        debugger.stop()
+
+
+def bench_points(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
+    from backend.pipeline.snapshot import PointLandmarks, frozen
+
+    debugger = start_debugger(sequence="a")
+    try:
+        for _ in range(20):
+            debugger.submit("step")
+        debugger.wait_idle(timeout=300)
+        page = open_page(browser, debugger)
+        wait_shown(page, "19 (PL-w)")
+        base = debugger.history[-1]
+        rng = np.random.default_rng(0)
+        n = args.points
+        p_world = rng.uniform([-4, -4, -1.5], [4, 4, 1.5], (n, 3))
+        points = PointLandmarks(
+            id=frozen(np.arange(n)), p_world=frozen(p_world), plane=frozen(rng.integers(-1, 4, n)),
+            anchor=frozen(np.zeros(n, int)), detection=frozen(rng.integers(0, 3, n).astype(np.uint8)),
+        )
+        big = dataclasses.replace(base, keyframe=base.keyframe + 1000, points=points)
+        draw, seen = [], []
+        for i in range(args.repeats):
+            snap = dataclasses.replace(big, keyframe=big.keyframe + i)
+            t0 = time.perf_counter()
+            debugger._show(snap)  # the worker is idle: the benchmark draws as the worker would
+            draw.append(1e3 * (time.perf_counter() - t0))
+            wait_shown(page, f"{snap.keyframe} (PL-w)")
+            seen.append(1e3 * (time.perf_counter() - t0))
+        print(f"{n:,} points (plus {len(base.lines)} lines, {len(base.planes)} planes, {len(base.estimate)} frustums):")
+        print(f"  server draw + send:       {_summary(draw)}")
+        print(f"  until the browser has it: {_summary(seen)}")
+        updated, rendered = _clicks(page, args.clicks)  # Step while the big map was shown
+        print(f"  Step click -> received:   {_summary(updated)}")
+        print(f"  Step click -> next frame: {_summary(rendered)}")
+    finally:
+        debugger.stop()
+
+
+def bench_memory(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
+    import gc
+
+    debugger = start_debugger(sequence="a")
+    try:
+        page = open_page(browser, debugger)
+        print(f"{'steps':>6s} {'RSS MiB':>8s} {'history':>8s} {'s/100 steps':>11s}")
+        print(f"{0:6d} {_rss_mib():8.1f} {0:8d}")
+        t0 = time.perf_counter()
+        for done in range(100, args.steps + 1, 100):
+            for _ in range(100):
+                debugger.submit("step")
+            debugger.wait_idle(timeout=600)
+            gc.collect()
+            print(f"{done:6d} {_rss_mib():8.1f} {len(debugger.history):8d} {time.perf_counter() - t0:11.1f}", flush=True)
+            t0 = time.perf_counter()
+        wait_shown(page, f"{args.steps - 1} (PL-w)")
+    finally:
+        debugger.stop()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("which", choices=("latency", "points", "memory"))
+    parser.add_argument("--sequence", choices=("a", "b"), default="a")
+    parser.add_argument("--warmup", type=int, default=30)
+    parser.add_argument("--clicks", type=int, default=30)
+    parser.add_argument("--points", type=int, default=100_000)
+    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--steps", type=int, default=1000)
+    args = parser.parse_args()
+    print(f"# python {platform.python_version()}, {platform.machine()}, {os.cpu_count()} cpus, chromium headless (software WebGL)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
+        {"latency": bench_latency, "points": bench_points, "memory": bench_memory}[args.which](browser, args)
+        browser.close()
+
+
+if __name__ == "__main__":
+    main()
