@@ -56,6 +56,16 @@ async () => {
 """
 
 
+# Wait (in the page) until the "Shown" field reads `expected`.
+_WAIT_JS = """
+async (expected) => {
+  const label = [...document.querySelectorAll('label')].find(l => l.textContent === 'Shown');
+  const input = label.closest('.mantine-Flex-root').querySelector('input');
+  while (input.value !== expected) { await new Promise(r => setTimeout(r, 1)); }
+}
+"""
+
+
 def _rss_mib() -> float:
     with open("/proc/self/status") as f:
         for line in f:
@@ -84,16 +94,31 @@ def bench_latency(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
         for _ in range(args.warmup):
             debugger.submit("step")
         debugger.wait_idle(timeout=300)
-        page = open_page(browser, debugger)
+        # Server side: from the click's arrival (the command is queued) to the scene flushed.
+        queued: list[float] = []
+        flushed: list[float] = []
+        put, draw = debugger._commands.put, debugger.scene.draw
+        debugger._commands.put = lambda item, *a, **k: (queued.append(time.perf_counter()), put(item, *a, **k))[1]
+
+        def timed_draw(snapshot):  # noqa: ANN001, ANN202
+            draw(snapshot)
+            flushed.append(time.perf_counter())
+
+        debugger.scene.draw = timed_draw
+        page = open_page(browser, debugger, width=args.width, height=args.height)
         wait_shown(page, f"{args.warmup - 1} (PL-w)")
         _clicks(page, 3)  # warm the page
+        queued.clear()
+        flushed.clear()
         n0 = len(debugger.history)
         updated, rendered = _clicks(page, args.clicks)
+        server = [1e3 * (b - a) for a, b in zip(queued, flushed)]
         totals = [s.report.timing_ms["total"] for s in list(debugger.history)[n0:]]
-        print(f"sequence {args.sequence}, window {debugger.engine.settings.window}, after {args.warmup} keyframes:")
+        print(f"sequence {args.sequence}, window {debugger.engine.settings.window}, after {args.warmup} keyframes, page {args.width}x{args.height}:")
         print(f"  click -> scene received:  {_summary(updated)}")
         print(f"  click -> next frame:      {_summary(rendered)}")
-        print(f"  engine step (server):     {_summary(totals)}")
+        print(f"  server: click -> sent:    {_summary(server)}")
+        print(f"  of which engine step:     {_summary(totals)}")
     finally:
         debugger.stop()
 
@@ -116,14 +141,14 @@ def bench_points(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
             id=frozen(np.arange(n)), p_world=frozen(p_world), plane=frozen(rng.integers(-1, 4, n)),
             anchor=frozen(np.zeros(n, int)), detection=frozen(rng.integers(0, 3, n).astype(np.uint8)),
         )
-        big = dataclasses.replace(base, keyframe=base.keyframe + 1000, points=points)
         draw, seen = [], []
-        for i in range(args.repeats):
-            snap = dataclasses.replace(big, keyframe=big.keyframe + i)
+        for i in range(args.repeats):  # alternate the label so that each draw is visible
+            variant = ("PL-wo", "PL-w")[i % 2]
+            snap = dataclasses.replace(base, points=points, report=dataclasses.replace(base.report, variant=variant))
             t0 = time.perf_counter()
             debugger._show(snap)  # the worker is idle: the benchmark draws as the worker would
             draw.append(1e3 * (time.perf_counter() - t0))
-            wait_shown(page, f"{snap.keyframe} (PL-w)")
+            page.evaluate(_WAIT_JS, f"{snap.keyframe} ({variant})")
             seen.append(1e3 * (time.perf_counter() - t0))
         print(f"{n:,} points (plus {len(base.lines)} lines, {len(base.planes)} planes, {len(base.estimate)} frustums):")
         print(f"  server draw + send:       {_summary(draw)}")
@@ -165,6 +190,8 @@ def main() -> None:
     parser.add_argument("--points", type=int, default=100_000)
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--width", type=int, default=1400, help="page size in CSS pixels (latency)")
+    parser.add_argument("--height", type=int, default=900)
     args = parser.parse_args()
     print(f"# python {platform.python_version()}, {platform.machine()}, {os.cpu_count()} cpus, chromium headless (software WebGL)")
     from playwright.sync_api import sync_playwright

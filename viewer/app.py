@@ -27,6 +27,7 @@ from viewer import images
 from viewer.scene import SceneView
 
 log = logging.getLogger(__name__)
+PROGRESS_DELAY_S = 0.3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,6 +75,7 @@ class Debugger:
         self._playing = threading.Event()
         self._stopped = threading.Event()
         self.busy = threading.Event()
+        self._progress_timer: threading.Timer | None = None
         self.steps_done = 0
         self.scene = SceneView(self.server)
         self._build_gui()
@@ -175,15 +177,31 @@ class Debugger:
                 self.play.value = False
                 self.status.content = f"**error** in {command}: `{type(exc).__name__}: {exc}`. Paused; fix or Reset."
             finally:
-                self.busy.clear()
-                self.progress.visible = False
+                self._idle()
                 if not from_timer:
                     self._commands.task_done()
 
     def _busy(self, text: str) -> None:
+        """Mark the worker busy; `text` and the progress bar appear only if the work takes
+        longer than PROGRESS_DELAY_S (a quick step should not repaint the panel twice)."""
         self.busy.set()
-        self.status.content = text
-        self.progress.visible = True
+
+        def show() -> None:
+            if self.busy.is_set():
+                self.status.content = text
+                self.progress.visible = True
+
+        self._progress_timer = threading.Timer(PROGRESS_DELAY_S, show)
+        self._progress_timer.daemon = True
+        self._progress_timer.start()
+
+    def _idle(self) -> None:
+        self.busy.clear()
+        if self._progress_timer is not None:
+            self._progress_timer.cancel()
+            self._progress_timer = None
+        if self.progress.visible:
+            self.progress.visible = False
 
     def _execute(self, command: str, arg: object) -> None:
         if command == "step":
@@ -223,15 +241,16 @@ class Debugger:
             self._update_compare()
 
     def _publish(self, snapshot: Snapshot) -> None:
-        """Keep a new snapshot and show it; the slider follows the newest keyframe."""
+        """Keep a new snapshot and show it; then the slider follows the newest keyframe."""
         self.history.append(snapshot)
-        first = self.history[0].keyframe
-        self.slider.disabled = len(self.history) < 2
-        self.slider.max = max(snapshot.keyframe, first + 1)
-        self.slider.min = first
-        self.slider.value = snapshot.keyframe
         self._show(snapshot)
-        self.status.content = f"**{self.engine.source}**: keyframe {snapshot.keyframe} · {snapshot.variant}" + (" · playing" if self._playing.is_set() else "")
+        first = self.history[0].keyframe
+        with self.server.atomic():
+            self.slider.disabled = len(self.history) < 2
+            self.slider.max = max(snapshot.keyframe, first + 1)
+            self.slider.min = first
+            self.slider.value = snapshot.keyframe
+            self.status.content = f"**{self.engine.source}**: keyframe {snapshot.keyframe} · {snapshot.variant}" + (" · playing" if self._playing.is_set() else "")
         self._update_compare()
 
     def _show(self, snapshot: Snapshot) -> None:

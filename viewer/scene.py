@@ -182,7 +182,7 @@ class SceneView:
         frusta = frustum_segments(R, t, snapshot.camera)
         kind = np.zeros(len(t), int)
         kind[snapshot.window] = 1
-        kind[snapshot.keyframe] = 2
+        kind[-1] = 2  # the newest keyframe is the last
         palette = np.array([COLOR_KEYFRAME, COLOR_WINDOW, COLOR_CURRENT], dtype=np.uint8)
         self._segments("/cameras/frustums", frusta, np.repeat(palette[kind], 8, axis=0), thickness=1.5)
         self._segments("/trajectory/estimate", polyline_segments(t), COLOR_ESTIMATE, thickness=2.0)

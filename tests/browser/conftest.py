@@ -55,8 +55,8 @@ def debugger() -> Iterator[object]:
     d.stop()
 
 
-def open_page(browser, debugger, *, height: int = 900):  # noqa: ANN001, ANN201
-    page = browser.new_page(viewport={"width": 1400, "height": height}, accept_downloads=True)
+def open_page(browser, debugger, *, width: int = 1400, height: int = 900):  # noqa: ANN001, ANN201
+    page = browser.new_page(viewport={"width": width, "height": height}, accept_downloads=True)
     page.set_default_timeout(TIMEOUT_MS)
     page.goto(f"http://127.0.0.1:{debugger.port}/")
     page.get_by_role("button", name="Step").wait_for()
