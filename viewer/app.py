@@ -101,7 +101,7 @@ class Debugger:
             self.hessian_legend = gui.add_markdown("no window optimized yet")
             self.hessian_image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
             self.compare_box = gui.add_checkbox("Compare -wo | -r | -w", initial_value=self.settings.compare)
-            self.compare_image = gui.add_image(images.blank(), label="same window, three parametrizations", format="png")
+            self.compare_image = gui.add_image(images.blank(), label="newest window under -wo | -r | -w", format="png")
         with gui.add_folder("Report"):
             self.report = gui.add_markdown("")
 
@@ -133,7 +133,9 @@ class Debugger:
 
         @self.slider.on_update
         def _(event: viser.GuiEvent) -> None:
-            if event.client is not None:
+            if event.client is not None:  # a user scrubs: stop playing, or the next step jumps back
+                if self.play.value:
+                    self.play.value = False
                 self._commands.put(("show", int(self.slider.value)))
 
         for name, box in self.layer_boxes.items():
