@@ -157,3 +157,34 @@ def test_readme_screenshot(browser, tmp_path) -> None:  # noqa: ANN001
         page.close()
     finally:
         debugger.stop()
+
+
+def test_play_pause_layers_and_reset(browser, debugger) -> None:  # noqa: ANN001
+    page = open_page(browser, debugger)
+    play = field(page, "Play")
+    play.check()
+    shown = field(page, "Shown")
+    shown.element_handle().wait_for_element_state("visible")
+    page.wait_for_function("el => parseInt(el.value) >= 3", arg=shown.element_handle())  # playing steps on its own
+    play.uncheck()
+    page.wait_for_timeout(300)
+    debugger.wait_idle()
+    stopped_at = debugger.engine.keyframes
+    page.wait_for_timeout(1000)
+    assert debugger.engine.keyframes == stopped_at  # paused
+
+    # Layer toggles hide and show scene nodes for every client.
+    field(page, "Points").uncheck()
+    page.wait_for_timeout(300)
+    assert debugger.scene.layers.points is False
+    assert debugger.scene._handles["/map/points"].visible is False
+    field(page, "Points").check()
+    page.wait_for_timeout(200)
+    assert debugger.scene._handles["/map/points"].visible is True
+
+    page.get_by_role("button", name="Reset").click()
+    page.get_by_text(re.compile("reset, press Step or Play")).wait_for()
+    assert debugger.engine.keyframes == 0 and len(debugger.history) == 0
+    page.get_by_role("button", name="Step").click()
+    wait_shown(page, "0 (PL-w)")
+    page.close()
