@@ -392,11 +392,11 @@ class SimEngine:
             cons = coplanar.ransac_plane(self._p_world[p_ids[ip]], segs[il], rng=rng, settings=cs)
             inst.append(int(q))
             cands.append(total)
+            inl.append(0 if cons is None else int(cons.point_inlier.sum() + cons.line_inlier.sum()))
+            acc.append(cons is not None and cons.accepted)
             if cons is None:
-                inl.append(0), acc.append(False), pid.append(-1)
+                pid.append(-1)
                 continue
-            inl.append(int(cons.point_inlier.sum() + cons.line_inlier.sum()))
-            acc.append(cons.accepted)
             p_state[ip] = np.where(cons.point_inlier, INLIER, OUTLIER)
             l_state[il] = np.where(cons.line_inlier, INLIER, OUTLIER)
             if not cons.accepted:
@@ -432,7 +432,7 @@ class SimEngine:
             return
         cs = self.settings.coplanar
         N, D = np.array(self._plane_n), np.array(self._plane_d)
-        for kind, ids, geom in (("point", new_points, None), ("line", new_lines, None)):
+        for kind, ids in (("point", new_points), ("line", new_lines)):
             ids = ids[(self._p_plane if kind == "point" else self._l_plane)[ids] < 0]
             if len(ids) == 0:
                 continue
