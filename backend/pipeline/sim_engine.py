@@ -488,8 +488,9 @@ class SimEngine:
         kf_p, lm_p, uv_p = kf_p[use_p], lm_p[use_p], uv_p[use_p]
         kf_l, lm_l, uv_l = kf_l[use_l], lm_l[use_l], uv_l[use_l]
         kfs = np.unique(np.concatenate([kf_p, kf_l, np.arange(w0, k + 1), [max(w0 - 1, 0)]]))
-        local = {int(f): i for i, f in enumerate(kfs)}
-        to_local = np.vectorize(local.__getitem__, otypes=[int])
+        def to_local(keyframe: np.ndarray) -> np.ndarray:  # keyframe index -> problem pose
+            return np.searchsorted(kfs, keyframe)
+
         p_local = np.full(len(self._p_ok), -1)
         p_local[pts] = np.arange(len(pts))
         l_local = np.full(len(self._l_ok), -1)
@@ -506,7 +507,7 @@ class SimEngine:
 
         R, t = self._R_est[kfs].copy(), self._t_est[kfs].copy()
         fixed = kfs < w0
-        a_p = to_local(self._p_anchor[pts]) if len(pts) else np.zeros(0, int)
+        a_p = to_local(self._p_anchor[pts])
         p_a = np.einsum("nji,nj->ni", R[a_p], self._p_world[pts] - t[a_p])
         rho = 1.0 / np.where(p_a[:, 2] > 1e-3, p_a[:, 2], 4.0)
         U, phi = line_geo.to_orthonormal(self._l_m[lns], self._l_v[lns]) if len(lns) else (np.zeros((0, 3, 3)), np.zeros((0, 2)))
@@ -515,7 +516,7 @@ class SimEngine:
         j = np.arange(max(w0, 1), k + 1)
         i = j - 1
         odometry = Odometry(
-            i=to_local(i) if len(i) else np.zeros(0, int), j=to_local(j) if len(j) else np.zeros(0, int), R_i_j=self._R_odo[j], t_i_j=self._t_odo[j],
+            i=to_local(i), j=to_local(j), R_i_j=self._R_odo[j], t_i_j=self._t_odo[j],
             sigma_rot=max(s.odometry_rotation_sigma_rad, 1e-6), sigma_pos=max(s.odometry_position_sigma_m, 1e-6),
         )
         prior = None
@@ -529,13 +530,13 @@ class SimEngine:
             point_anchor_uv=self._p_anchor_uv[pts],
             point_rho=rho,
             point_plane=q_local[self._p_plane[pts]],
-            point_obs=Observations(p_local[lm_p], to_local(kf_p) if len(kf_p) else kf_p, uv_p, zeros(len(kf_p))),
-            line_anchor=to_local(self._l_anchor[lns]) if len(lns) else np.zeros(0, int),
+            point_obs=Observations(p_local[lm_p], to_local(kf_p), uv_p, zeros(len(kf_p))),
+            line_anchor=to_local(self._l_anchor[lns]),
             line_anchor_uv=self._l_anchor_uv[lns],
             line_U=U,
             line_phi=phi,
             line_plane=q_local[self._l_plane[lns]],
-            line_obs=Observations(l_local[lm_l], to_local(kf_l) if len(kf_l) else kf_l, uv_l, zeros(len(kf_l))),
+            line_obs=Observations(l_local[lm_l], to_local(kf_l), uv_l, zeros(len(kf_l))),
             plane_n=np.array(self._plane_n).reshape(-1, 3)[planes],
             plane_d=np.array(self._plane_d)[planes],
             odometry=odometry,
