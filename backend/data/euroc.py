@@ -1,0 +1,351 @@
+"""Reader of EuRoC ASL folders: `mav0/cam0`, `mav0/cam1`, `mav0/imu0` and, optionally,
+`mav0/state_groundtruth_estimate0`, each with `data.csv` and `sensor.yaml`.
+
+Frames and units: timestamps are int64 nanoseconds; poses `T_world_x` (4, 4) in metres with
+`p_world = R p_x + t`. `world` is the ground truth's reference frame (EuRoC's Vicon frame,
+z up); `body` is EuRoC's body frame (the IMU's); cam0/cam1 are the raw left/right cameras and
+rect0 the rectified left camera (`backend.data.calibration`). Ground truth is the body pose
+interpolated at frame times (linear in position, slerp in rotation), then
+`T_world_cam0 = T_world_body T_body_cam0` and `T_world_rect0 = T_world_cam0 [R_rect0_cam0ᵀ | 0]`;
+frames outside the ground truth's time range, or in a gap longer than `max_ground_truth_gap_ns`,
+get NaN poses.
+
+Stereo frames are the timestamps listed in both cameras' `data.csv`; every listed image must
+exist on disk. Images load lazily, by frame index. Every problem with the input is a
+DatasetError naming the file (and the 1-based line of a CSV).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from backend.data.calibration import (
+    CameraCalibration,
+    ImuCalibration,
+    StereoRectification,
+    read_camera_yaml,
+    read_imu_yaml,
+    read_sensor_transform,
+    stereo_rectification,
+)
+from backend.data.errors import DatasetError, read_text
+from backend.data.motion import ImuData
+from backend.geometry.camera import PinholeCamera
+
+CAMERA_COLUMNS = ("timestamp", "filename")
+IMU_COLUMNS = ("timestamp", "w_RS_S_x", "w_RS_S_y", "w_RS_S_z", "a_RS_S_x", "a_RS_S_y", "a_RS_S_z")
+GROUND_TRUTH_COLUMNS = (
+    "timestamp",
+    "p_RS_R_x", "p_RS_R_y", "p_RS_R_z",
+    "q_RS_w", "q_RS_x", "q_RS_y", "q_RS_z",
+    "v_RS_R_x", "v_RS_R_y", "v_RS_R_z",
+    "b_w_RS_S_x", "b_w_RS_S_y", "b_w_RS_S_z",
+    "b_a_RS_S_x", "b_a_RS_S_y", "b_a_RS_S_z",
+)
+GROUND_TRUTH_POSE_COLUMNS = 8  # a pose-only ground truth (timestamp, p, q) is accepted too
+QUATERNION_NORM_TOLERANCE = 1e-2
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class GroundTruth:
+    """`state_groundtruth_estimate0` samples (M,): body poses in the world frame (metres),
+    the file's velocity (m/s, world frame) and gyro (rad/s) / accelerometer (m/s²) biases;
+    NaN velocity and biases for a pose-only file."""
+
+    timestamp_ns: np.ndarray
+    p_world_body: np.ndarray  # (M, 3)
+    R_world_body: np.ndarray  # (M, 3, 3)
+    v_world: np.ndarray       # (M, 3)
+    gyro_bias: np.ndarray     # (M, 3)
+    accel_bias: np.ndarray    # (M, 3)
+
+    def __len__(self) -> int:
+        return int(self.timestamp_ns.shape[0])
+
+    def T_world_body_at(self, timestamp_ns: np.ndarray, *, max_gap_ns: int) -> np.ndarray:
+        """Body poses (N, 4, 4) at `timestamp_ns` (N,): linear position, slerp rotation between
+        the two samples around each time; NaN outside the samples' range or where they are more
+        than `max_gap_ns` apart."""
+        t = np.asarray(timestamp_ns, dtype=np.int64)
+        T = np.full((t.shape[0], 4, 4), np.nan)
+        samples = self.timestamp_ns
+        if t.shape[0] == 0 or samples.shape[0] == 0:
+            return T
+        if samples.shape[0] == 1:
+            exact = t == samples[0]
+            T[exact] = _pose(self.R_world_body[:1], self.p_world_body[:1])
+            return T
+        i0 = np.clip(np.searchsorted(samples, t, side="right") - 1, 0, samples.shape[0] - 2)
+        i1 = i0 + 1
+        span_ns = samples[i1] - samples[i0]
+        alpha = (t - samples[i0]).astype(np.float64) / span_ns.astype(np.float64)
+        inside = (t >= samples[0]) & (t <= samples[-1])
+        on_sample = (t == samples[i0]) | (t == samples[i1])
+        valid = inside & (on_sample | (span_ns <= max_gap_ns))
+        if not np.any(valid):
+            return T
+        i0, i1, alpha = i0[valid], i1[valid], alpha[valid]
+        r0 = Rotation.from_matrix(self.R_world_body[i0])
+        r1 = Rotation.from_matrix(self.R_world_body[i1])
+        rotvec_0_1 = (r0.inv() * r1).as_rotvec()  # shortest arc: angle in [0, π]
+        R = (r0 * Rotation.from_rotvec(alpha[:, None] * rotvec_0_1)).as_matrix()
+        p = (1.0 - alpha)[:, None] * self.p_world_body[i0] + alpha[:, None] * self.p_world_body[i1]
+        T[valid] = _pose(R, p)
+        return T
+
+
+class EurocDataset:
+    """A stereo + IMU EuRoC ASL folder (module docstring for frames and units).
+
+    `root` is the folder holding `mav0` (or `mav0` itself). Raises DatasetError on bad input.
+    """
+
+    def __init__(self, root: pathlib.Path | str, *, max_ground_truth_gap_ns: int = 100_000_000) -> None:
+        self.root = pathlib.Path(root)
+        mav0 = _find_mav0(self.root)
+        cam0_dir = _require_folder(mav0 / "cam0")
+        cam1_dir = _require_folder(mav0 / "cam1")
+        imu_dir = _require_folder(mav0 / "imu0")
+
+        self.cam0: CameraCalibration = read_camera_yaml(cam0_dir / "sensor.yaml")
+        self.cam1: CameraCalibration = read_camera_yaml(cam1_dir / "sensor.yaml")
+        self.imu_calibration: ImuCalibration = read_imu_yaml(imu_dir / "sensor.yaml")
+        self.rectification: StereoRectification = stereo_rectification(self.cam0, self.cam1)
+
+        stamps0, images0 = _read_camera_csv(cam0_dir)
+        stamps1, images1 = _read_camera_csv(cam1_dir)
+        common, index0, index1 = np.intersect1d(stamps0, stamps1, assume_unique=True, return_indices=True)
+        if common.shape[0] == 0:
+            raise DatasetError(cam1_dir / "data.csv", f"no timestamp in common with {cam0_dir / 'data.csv'}")
+        self.timestamps_ns: np.ndarray = common
+        self._images0 = [images0[i] for i in index0]
+        self._images1 = [images1[i] for i in index1]
+        self.unpaired_images: tuple[int, int] = (stamps0.shape[0] - common.shape[0], stamps1.shape[0] - common.shape[0])
+
+        self.imu: ImuData = _read_imu_csv(imu_dir / "data.csv")
+
+        self.ground_truth: GroundTruth | None = None
+        truth_dir = mav0 / "state_groundtruth_estimate0"
+        if truth_dir.exists():
+            self.ground_truth = _read_ground_truth(_require_folder(truth_dir))
+            self.T_world_body: np.ndarray = self.ground_truth.T_world_body_at(common, max_gap_ns=max_ground_truth_gap_ns)
+        else:
+            self.T_world_body = np.full((common.shape[0], 4, 4), np.nan)
+        self.T_world_cam0: np.ndarray = self.T_world_body @ self.cam0.T_body_camera
+        self.T_world_rect0: np.ndarray = self.T_world_cam0 @ self.rectification.T_cam0_rect0
+
+    def __len__(self) -> int:
+        return int(self.timestamps_ns.shape[0])
+
+    @property
+    def camera(self) -> PinholeCamera:
+        """The rectified left camera (rect0) with the stereo baseline, metres."""
+        return self.rectification.camera
+
+    @property
+    def ground_truth_valid(self) -> np.ndarray:
+        """(N,) bool: frames with a ground-truth pose."""
+        return ~np.isnan(self.T_world_body[:, 0, 0])
+
+    def image_paths(self, index: int) -> tuple[pathlib.Path, pathlib.Path]:
+        """Files of frame `index`'s cam0 and cam1 images."""
+        index = self._check_index(index)
+        return self._images0[index], self._images1[index]
+
+    def raw_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame `index`'s raw cam0, cam1 images: grayscale uint8 (height, width)."""
+        path0, path1 = self.image_paths(index)
+        return _load_gray(path0, self.cam0), _load_gray(path1, self.cam1)
+
+    def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame `index`'s rectified rect0, rect1 images: grayscale uint8, pixels of `camera`."""
+        return self.rectification.rectify(*self.raw_pair(index))
+
+    def imu_between(self, t0_ns: int, t1_ns: int) -> ImuData:
+        """IMU samples with `t0_ns < t <= t1_ns`: gyro rad/s, accelerometer m/s², in the IMU
+        frame (`imu_calibration.T_body_imu`; the identity, i.e. the body frame, in EuRoC)."""
+        if t1_ns < t0_ns:
+            raise ValueError(f"t1_ns {t1_ns} is before t0_ns {t0_ns}")
+        stamps = self.imu.timestamp_ns
+        begin, end = np.searchsorted(stamps, [t0_ns, t1_ns], side="right")
+        return ImuData(timestamp_ns=stamps[begin:end], gyro=self.imu.gyro[begin:end], accel=self.imu.accel[begin:end])
+
+    def _check_index(self, index: int) -> int:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"frame {index} out of range (0..{n - 1})")
+        return index % n
+
+
+def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.zeros(R.shape[:-2] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def _find_mav0(root: pathlib.Path) -> pathlib.Path:
+    if not root.exists():
+        raise DatasetError(root, "no such folder")
+    if not root.is_dir():
+        raise DatasetError(root, "not a folder (expected an EuRoC ASL dataset folder holding mav0)")
+    if (root / "mav0").is_dir():
+        return root / "mav0"
+    if root.name == "mav0" and (root / "cam0").is_dir():
+        return root
+    raise DatasetError(root, "no mav0 folder (expected an EuRoC ASL dataset: mav0/cam0, mav0/cam1, mav0/imu0)")
+
+
+def _require_folder(path: pathlib.Path) -> pathlib.Path:
+    if not path.exists():
+        raise DatasetError(path, "missing folder")
+    if not path.is_dir():
+        raise DatasetError(path, "not a folder")
+    return path
+
+
+def _read_rows(path: pathlib.Path, columns: tuple[str, ...], *, counts: tuple[int, ...] | None = None) -> tuple[list[int], list[list[str]]]:
+    """Data rows of an EuRoC CSV with their 1-based line numbers. Lines starting with `#`
+    (the header) and blank lines are skipped. Every row has `len(columns)` fields, or one of
+    `counts` (the first row chooses)."""
+    counts = counts or (len(columns),)
+    lines: list[int] = []
+    rows: list[list[str]] = []
+    expected: int | None = None
+    for number, raw in enumerate(read_text(path).split("\n"), start=1):
+        text = raw.strip()
+        if not text or text.startswith("#"):
+            continue
+        fields = text.split(",")
+        if " " in text or "\t" in text:
+            fields = [field.strip() for field in fields]
+        if expected is None and len(fields) in counts:
+            expected = len(fields)
+        target = expected if expected is not None else max(counts)
+        if len(fields) != target:
+            kind = "truncated row" if len(fields) < target else "too many columns"
+            wanted = str(expected) if expected is not None else " or ".join(str(c) for c in counts)
+            raise DatasetError(path, f"{kind}: {len(fields)} column{'s' * (len(fields) != 1)}, expected {wanted}", line=number)
+        lines.append(number)
+        rows.append(fields)
+    if not rows:
+        raise DatasetError(path, "no data rows")
+    return lines, rows
+
+
+def _timestamps(path: pathlib.Path, lines: list[int], rows: list[list[str]]) -> np.ndarray:
+    """First column as int64 nanoseconds, strictly increasing."""
+    stamps = np.empty(len(rows), dtype=np.int64)
+    for i, (line, fields) in enumerate(zip(lines, rows)):
+        text = fields[0]
+        if not (text.isascii() and text.isdigit()) or int(text) >= 2**63:
+            raise DatasetError(path, f"timestamp '{text}' is not a whole number of nanoseconds", line=line)
+        stamps[i] = int(text)
+    backwards = np.flatnonzero(np.diff(stamps) <= 0)
+    if backwards.size:
+        i = int(backwards[0]) + 1
+        raise DatasetError(path, f"timestamp {stamps[i]} is not after the previous row's {stamps[i - 1]}", line=lines[i])
+    return stamps
+
+
+def _values(path: pathlib.Path, lines: list[int], rows: list[list[str]], columns: tuple[str, ...]) -> np.ndarray:
+    """Columns 2.. as finite float64 (N, C - 1)."""
+    try:
+        values = np.array([fields[1:] for fields in rows], dtype=np.float64)
+    except ValueError:
+        for line, fields in zip(lines, rows):
+            for name, text in zip(columns[1:], fields[1:]):
+                try:
+                    float(text)
+                except ValueError:
+                    shown = f"non-numeric value '{text}'" if text else "empty field"
+                    raise DatasetError(path, f"{shown} in column {name}", line=line) from None
+        raise DatasetError(path, "non-numeric value") from None  # numpy and float() disagree: not expected
+    bad = np.argwhere(~np.isfinite(values))
+    if bad.size:
+        i, j = (int(k) for k in bad[0])
+        kind = "NaN" if np.isnan(values[i, j]) else "infinite value"
+        raise DatasetError(path, f"{kind} in column {columns[j + 1]}", line=lines[i])
+    return values
+
+
+def _read_camera_csv(camera_dir: pathlib.Path) -> tuple[np.ndarray, list[pathlib.Path]]:
+    """A camera's timestamps and image files; every listed image must exist."""
+    path = camera_dir / "data.csv"
+    lines, rows = _read_rows(path, CAMERA_COLUMNS)
+    stamps = _timestamps(path, lines, rows)
+    data_dir = camera_dir / "data"
+    try:
+        present = set(os.listdir(data_dir))
+    except FileNotFoundError:
+        raise DatasetError(data_dir, f"missing folder (the images listed in {path})") from None
+    except OSError as error:
+        raise DatasetError(data_dir, f"cannot list ({error.strerror or error})") from None
+    images = []
+    for line, fields in zip(lines, rows):
+        name = fields[1]
+        if not name:
+            raise DatasetError(path, "empty filename", line=line)
+        image = data_dir / name
+        if name not in present and not image.is_file():
+            raise DatasetError(path, f"image {image} is listed but absent", line=line)
+        images.append(image)
+    return stamps, images
+
+
+def _read_imu_csv(path: pathlib.Path) -> ImuData:
+    lines, rows = _read_rows(path, IMU_COLUMNS)
+    stamps = _timestamps(path, lines, rows)
+    values = _values(path, lines, rows, IMU_COLUMNS)
+    return ImuData(timestamp_ns=stamps, gyro=values[:, 0:3], accel=values[:, 3:6])
+
+
+def _read_ground_truth(truth_dir: pathlib.Path) -> GroundTruth:
+    """Body poses from `data.csv` (the pose of the file's sensor S, `T_world_S`) and, when
+    present, `sensor.yaml`'s `T_BS` (identity otherwise): `T_world_body = T_world_S T_BS⁻¹`."""
+    path = truth_dir / "data.csv"
+    lines, rows = _read_rows(path, GROUND_TRUTH_COLUMNS, counts=(len(GROUND_TRUTH_COLUMNS), GROUND_TRUTH_POSE_COLUMNS))
+    stamps = _timestamps(path, lines, rows)
+    values = _values(path, lines, rows, GROUND_TRUTH_COLUMNS)
+    q_wxyz = values[:, 3:7]
+    norm = np.linalg.norm(q_wxyz, axis=1)
+    off = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE)
+    if off.size:
+        i = int(off[0])
+        raise DatasetError(path, f"quaternion q_RS (w, x, y, z) has norm {norm[i]:.6g}, expected 1", line=lines[i])
+    T_world_sensor = _pose(Rotation.from_quat(q_wxyz / norm[:, None], scalar_first=True).as_matrix(), values[:, 0:3])
+    yaml_path = truth_dir / "sensor.yaml"
+    if yaml_path.exists():
+        T_world_body = T_world_sensor @ np.linalg.inv(read_sensor_transform(yaml_path, default=np.eye(4)))
+    else:
+        T_world_body = T_world_sensor
+    extra = values[:, 7:16] if values.shape[1] >= 16 else np.full((len(rows), 9), np.nan)
+    return GroundTruth(
+        timestamp_ns=stamps,
+        p_world_body=T_world_body[:, :3, 3].copy(),
+        R_world_body=T_world_body[:, :3, :3].copy(),
+        v_world=extra[:, 0:3],
+        gyro_bias=extra[:, 3:6],
+        accel_bias=extra[:, 6:9],
+    )
+
+
+def _load_gray(path: pathlib.Path, calibration: CameraCalibration) -> np.ndarray:
+    """Grayscale uint8 image of the calibration's size."""
+    try:
+        encoded = np.fromfile(path, dtype=np.uint8)
+    except OSError as error:
+        raise DatasetError(path, f"cannot read image ({error.strerror or error})") from None
+    image = cv2.imdecode(encoded, cv2.IMREAD_GRAYSCALE) if encoded.size else None
+    if image is None:
+        raise DatasetError(path, "not a readable image")
+    if image.shape != (calibration.height, calibration.width):
+        raise DatasetError(path, f"image is {image.shape[1]}x{image.shape[0]}, {calibration.source} says {calibration.width}x{calibration.height}")
+    return image
