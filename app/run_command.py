@@ -15,7 +15,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run the engine headless; write trajectory.txt, metrics.json and map.ply")
     source = p.add_mutually_exclusive_group()
     source.add_argument("--scene", default=None, help=f"built-in scene: {', '.join(SCENES)} (default {DEFAULT_SCENE})")
-    source.add_argument("--dataset", default=None, help="EuRoC ASL folder (not available yet: arrives with the dataset reader)")
+    source.add_argument("--dataset", default=None, help="EuRoC ASL folder (read and checked; the stereo pipeline that runs on it is not implemented yet)")
     p.add_argument("--variant", required=True, choices=VARIANTS, help="parametrization")
     p.add_argument("--out", required=True, type=pathlib.Path, help="output folder (created if missing)")
     p.add_argument("--keyframes", type=int, default=None, help="keyframes to run (default: one pass of the scene's trajectory)")

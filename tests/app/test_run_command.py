@@ -42,7 +42,7 @@ def test_run_writes_trajectory_metrics_and_map(tmp_path: pathlib.Path, capsys: p
     ("argv", "words"),
     [
         (["--keyframes", "0"], ["--keyframes", "at least 1"]),
-        (["--dataset", "/data/euroc"], ["--dataset", "not implemented"]),
+        (["--dataset", "/data/euroc"], ["/data/euroc", "no such folder"]),
         (["--scene", "room"], ["--scene", "room"]),
     ],
 )
@@ -60,3 +60,20 @@ def test_out_that_is_a_file_is_refused_and_kept(tmp_path: pathlib.Path, capsys: 
     assert cli.main(["run", "--scene", "mc-b", "--variant", "P-w", "--out", str(target)]) == 2
     assert "not a folder" in capsys.readouterr().err
     assert target.read_text() == "keep me"
+
+
+def test_dataset_is_read_and_checked(tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A good EuRoC folder is read (the pipeline that runs on it comes later); a broken one
+    is one line naming the bad file."""
+    import shutil
+
+    from tests.backend.data.test_euroc import write_euroc
+
+    root = write_euroc(tmp_path / "seq")
+    assert cli.main(["run", "--dataset", str(root), "--variant", "PL-w", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "stereo frames" in err[0] and "not implemented" in err[0]
+    shutil.rmtree(root / "mav0" / "cam1")
+    assert cli.main(["run", "--dataset", str(root), "--variant", "PL-w", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "cam1" in err[0] and "Traceback" not in err[0]

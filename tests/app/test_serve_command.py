@@ -38,7 +38,7 @@ def _assert_one_error_line(err: str, words: list[str]) -> None:
 
 BAD_INPUT = {
     "scene": (["--scene", "nope"], ["--scene", "nope", "mc-a"]),
-    "dataset": (["--dataset", "/some/path"], ["--dataset", "/some/path", "not implemented"]),
+    "dataset": (["--dataset", "/some/path"], ["/some/path", "no such folder"]),
     "scene-and-dataset": (["--scene", "mc-a", "--dataset", "/some/path"], ["--dataset"]),
     "mislabel-high": (["--mislabel", "1.5"], ["--mislabel", "1.5"]),
     "mislabel-negative": (["--mislabel", "-0.1"], ["--mislabel", "-0.1"]),
