@@ -12,7 +12,7 @@ import argparse  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
-from app import run_command, serve_command, sim_command  # noqa: E402
+from app import render_command, run_command, serve_command, sim_command  # noqa: E402
 
 EXIT_BAD_INPUT = 2
 
@@ -31,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     serve_command.add_parser(sub)
     run_command.add_parser(sub)
+    render_command.add_parser(sub)
     sim_command.add_parser(sub)
     return parser
 

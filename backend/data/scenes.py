@@ -1,0 +1,461 @@
+"""Synthetic indoor scenes: textured planar rectangles plus non-planar spheres and vertical
+cylinders, in the world frame (metres, z up).
+
+A rectangle is `X(a, b) = p0 + a u + b v` for `a ∈ [0, w]`, `b ∈ [0, h]` (u, v unit and
+orthogonal); its texture's column index runs along u and its row index along v. Its plane
+is `n = u × v`, `d = -n·p0` (DESIGN §2: `n·X + d = 0`). Every rectangle carries a plane id
+(≥ 0); coplanar rectangles may share one (a poster on a wall shares the wall's id and, drawn
+after it, covers it). Spheres and cylinders have no plane (id -1 in the renderer's masks).
+
+Built-in scenes: `room` (default), `corridor`, `boxes` (`builtin_scene`). User scenes are
+JSON files (`load_scene`, `scene_to_json`); see `scene_to_dict` for the layout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+import os
+import pathlib
+from typing import Any
+
+import numpy as np
+
+from backend.data.textures import DEFAULT_TEXEL_M, KINDS, texture_shape
+
+SCENE_NAMES = ("room", "corridor", "boxes")
+DEFAULT_SCENE = "room"
+_MAX_PLANE_ID = 32766  # plane masks are int16
+
+
+class SceneFileError(ValueError):
+    """A malformed scene file; the message is one line naming the file and the problem."""
+
+    def __init__(self, path: str | os.PathLike[str], reason: str) -> None:
+        self.path = os.fspath(path)
+        self.reason = " ".join(str(reason).split())
+        super().__init__(f"{self.path}: {self.reason}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Texture:
+    """A procedural texture (`backend.data.textures`): kind, seed and texel size (metres)."""
+
+    kind: str
+    seed: int
+    texel_m: float = DEFAULT_TEXEL_M
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Rectangle:
+    """A textured planar rectangle in the world frame: corner `p0` (3,), unit orthogonal
+    axes `u`, `v` (3,), extents `size = (w, h)` metres along u and v, and its plane id."""
+
+    p0: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    size: tuple[float, float]
+    texture: Texture
+    plane_id: int
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit normal `u × v` (3,), world frame."""
+        return np.cross(self.u, self.v)
+
+    @property
+    def plane(self) -> np.ndarray:
+        """`(n, d)` as (4,): `n·X + d = 0` for world points X on the rectangle."""
+        n = self.normal
+        return np.concatenate([n, [-float(n @ self.p0)]])
+
+    @functools.cached_property
+    def texture_shape(self) -> tuple[int, int]:
+        """(rows, cols) of its texture image."""
+        return texture_shape(self.size[0], self.size[1], texel_m=self.texture.texel_m)
+
+    @functools.cached_property
+    def corners(self) -> np.ndarray:
+        """World corners (4, 3) in the order p0, p0 + w u, p0 + w u + h v, p0 + h v."""
+        w, h = self.size
+        corners = np.stack([self.p0, self.p0 + w * self.u, self.p0 + w * self.u + h * self.v, self.p0 + h * self.v])
+        corners.setflags(write=False)
+        return corners
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Sphere:
+    """A sphere (world centre (3,), radius in metres) with base grey `shade` (0..255) and a
+    checker of `pattern_cells` cells around its equator."""
+
+    centre: np.ndarray
+    radius: float
+    shade: float = 170.0
+    pattern_cells: int = 8
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Cylinder:
+    """A vertical cylinder with caps: axis through world `centre_xy` (2,), radius and
+    `z_range = (z0, z1)` metres; grey `shade` and `pattern_cells` checker cells around it."""
+
+    centre_xy: np.ndarray
+    radius: float
+    z_range: tuple[float, float]
+    shade: float = 150.0
+    pattern_cells: int = 12
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Scene:
+    """Rectangles (drawn in order: later ones win ties, so decals follow their wall),
+    spheres and cylinders; `camera_region` is (centre (3,), half_extent (3,)) metres, a box
+    of free space where cameras may move (None when unknown)."""
+
+    name: str
+    rectangles: tuple[Rectangle, ...]
+    spheres: tuple[Sphere, ...] = ()
+    cylinders: tuple[Cylinder, ...] = ()
+    camera_region: tuple[np.ndarray, np.ndarray] | None = None
+
+    def __post_init__(self) -> None:
+        _validate(self)
+
+    @functools.cached_property
+    def planes(self) -> dict[int, np.ndarray]:
+        """Plane table: id -> `(n, d)` (4,), world frame, `n·X + d = 0` (the first
+        rectangle's with that id)."""
+        table: dict[int, np.ndarray] = {}
+        for rect in self.rectangles:
+            table.setdefault(rect.plane_id, rect.plane)
+        return table
+
+
+def _validate(scene: Scene) -> None:
+    """Raises ValueError with a short reason when the scene is not well formed."""
+    planes: dict[int, tuple[int, np.ndarray]] = {}
+    for i, rect in enumerate(scene.rectangles):
+        where = f"rectangles[{i}]"
+        for name in ("p0", "u", "v"):
+            value = getattr(rect, name)
+            if value.shape != (3,) or not np.all(np.isfinite(value)):
+                raise ValueError(f"{where}.{name}: expected 3 finite numbers")
+        if abs(np.linalg.norm(rect.u) - 1.0) > 1e-6 or abs(np.linalg.norm(rect.v) - 1.0) > 1e-6:
+            raise ValueError(f"{where}: u and v must be unit vectors")
+        if abs(float(rect.u @ rect.v)) > 1e-6:
+            raise ValueError(f"{where}: u and v must be orthogonal")
+        if not (len(rect.size) == 2 and all(math.isfinite(s) and s > 0 for s in rect.size)):
+            raise ValueError(f"{where}.size: expected two positive extents (metres)")
+        if rect.texture.kind not in KINDS:
+            raise ValueError(f"{where}.texture.kind: unknown {rect.texture.kind!r} (known: {', '.join(KINDS)})")
+        if not (rect.texture.texel_m > 0 and math.isfinite(rect.texture.texel_m)):
+            raise ValueError(f"{where}.texture.texel_m: must be positive")
+        if not 0 <= rect.plane_id <= _MAX_PLANE_ID:
+            raise ValueError(f"{where}.plane_id: must be in 0..{_MAX_PLANE_ID}")
+        plane = rect.plane
+        if rect.plane_id in planes:
+            first, other = planes[rect.plane_id]
+            if other[:3] @ plane[:3] < 1.0 - 1e-9 or abs(other[3] - plane[3]) > 1e-6:
+                raise ValueError(f"{where}: plane_id {rect.plane_id} is shared with rectangles[{first}] but the two are not coplanar (same side)")
+        else:
+            planes[rect.plane_id] = (i, plane)
+    for i, sphere in enumerate(scene.spheres):
+        if sphere.centre.shape != (3,) or not np.all(np.isfinite(sphere.centre)) or not sphere.radius > 0:
+            raise ValueError(f"spheres[{i}]: expected a finite centre (3 numbers) and a positive radius")
+    for i, cyl in enumerate(scene.cylinders):
+        if cyl.centre_xy.shape != (2,) or not np.all(np.isfinite(cyl.centre_xy)) or not cyl.radius > 0:
+            raise ValueError(f"cylinders[{i}]: expected a finite centre_xy (2 numbers) and a positive radius")
+        if not (len(cyl.z_range) == 2 and cyl.z_range[0] < cyl.z_range[1]):
+            raise ValueError(f"cylinders[{i}].z_range: expected [z0, z1] with z0 < z1")
+
+
+# ----------------------------------------------------------------------------- builders
+
+_Z = np.array([0.0, 0.0, 1.0])
+
+
+def facing_rectangle(centre: np.ndarray, normal: np.ndarray, size: tuple[float, float], texture: Texture, plane_id: int) -> Rectangle:
+    """A rectangle centred at world `centre` whose normal `u × v` is `normal` (it faces
+    that way). For non-horizontal normals u is horizontal and v points up; for horizontal
+    surfaces u is world x."""
+    n = np.asarray(normal, dtype=float)
+    n = n / np.linalg.norm(n)
+    if abs(n[2]) < 0.9:
+        u = np.cross(_Z, n)
+        u /= np.linalg.norm(u)
+    else:
+        u = np.array([1.0, 0.0, 0.0])
+        u -= (u @ n) * n
+        u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    w, h = size
+    p0 = np.asarray(centre, dtype=float) - 0.5 * w * u - 0.5 * h * v
+    return Rectangle(p0=p0, u=u, v=v, size=(float(w), float(h)), texture=texture, plane_id=plane_id)
+
+
+def box_rectangles(centre_xy: tuple[float, float], size: tuple[float, float, float], *, z0: float = 0.0, kind: str, seed: int, first_plane_id: int) -> list[Rectangle]:
+    """The five faces (four sides facing out, top facing up) of an axis-aligned box
+    standing at height z0; plane ids first_plane_id .. first_plane_id + 4."""
+    cx, cy = centre_xy
+    sx, sy, sz = size
+    zc = z0 + 0.5 * sz
+    faces = [
+        ((cx + sx / 2, cy, zc), (1, 0, 0), (sy, sz)),
+        ((cx - sx / 2, cy, zc), (-1, 0, 0), (sy, sz)),
+        ((cx, cy + sy / 2, zc), (0, 1, 0), (sx, sz)),
+        ((cx, cy - sy / 2, zc), (0, -1, 0), (sx, sz)),
+        ((cx, cy, z0 + sz), (0, 0, 1), (sx, sy)),
+    ]
+    return [
+        facing_rectangle(np.array(c, float), np.array(n, float), s, Texture(kind, seed * 10 + k), first_plane_id + k)
+        for k, (c, n, s) in enumerate(faces)
+    ]
+
+
+def _room() -> Scene:
+    """6 × 5 × 3 m room (x ∈ [-3, 3], y ∈ [-2.5, 2.5], z ∈ [0, 3])."""
+    X, Y, H = 3.0, 2.5, 3.0
+    rects = [
+        facing_rectangle(np.array([0, 0, 0.0]), _Z, (2 * X, 2 * Y), Texture("tiles", 1), 0),
+        facing_rectangle(np.array([0, 0, H]), -_Z, (2 * X, 2 * Y), Texture("tiles", 2, 0.01), 1),
+        facing_rectangle(np.array([X, 0, H / 2]), np.array([-1.0, 0, 0]), (2 * Y, H), Texture("plaster", 3), 2),
+        facing_rectangle(np.array([-X, 0, H / 2]), np.array([1.0, 0, 0]), (2 * Y, H), Texture("panels", 4), 3),
+        facing_rectangle(np.array([0, Y, H / 2]), np.array([0, -1.0, 0]), (2 * X, H), Texture("plaster", 5), 4),
+        facing_rectangle(np.array([0, -Y, H / 2]), np.array([0, 1.0, 0]), (2 * X, H), Texture("tiles", 6), 5),
+    ]
+    # decals: posters and doors on the walls, sharing the wall's plane
+    decals = [
+        ((X, -1.0, 1.6), (-1, 0, 0), (0.8, 1.1), "poster", 2),
+        ((X, 0.6, 1.5), (-1, 0, 0), (1.2, 0.8), "poster", 2),
+        ((X, 1.8, 1.05), (-1, 0, 0), (0.9, 2.1), "door", 2),
+        ((-X, 0.5, 1.6), (1, 0, 0), (1.0, 0.7), "poster", 3),
+        ((-1.5, Y, 1.05), (0, -1, 0), (0.9, 2.1), "door", 4),
+        ((0.5, Y, 1.6), (0, -1, 0), (1.0, 1.0), "poster", 4),
+        ((1.9, Y, 1.5), (0, -1, 0), (0.6, 0.9), "poster", 4),
+        ((-0.8, -Y, 1.7), (0, 1, 0), (1.4, 0.9), "poster", 5),
+        ((1.2, -Y, 1.4), (0, 1, 0), (0.7, 1.0), "poster", 5),
+    ]
+    for k, (c, n, s, kind, pid) in enumerate(decals):
+        rects.append(facing_rectangle(np.array(c, float), np.array(n, float), s, Texture(kind, 100 + k), pid))
+    rects.append(facing_rectangle(np.array([-2.0, 1.6, 0.75]), _Z, (1.2, 0.7), Texture("panels", 7), 6))
+    rects += box_rectangles((2.2, -1.7), (0.6, 0.6, 0.6), kind="poster", seed=8, first_plane_id=7)
+    legs = [Cylinder(np.array([-2.0 + sx * 0.55, 1.6 + sy * 0.3]), 0.03, (0.0, 0.75), shade=60.0, pattern_cells=4) for sx in (-1, 1) for sy in (-1, 1)]
+    return Scene(
+        name="room",
+        rectangles=tuple(rects),
+        spheres=(Sphere(np.array([2.2, 1.7, 0.35]), 0.35, shade=190.0, pattern_cells=10),),
+        cylinders=(Cylinder(np.array([-2.3, -1.8]), 0.25, (0.0, 1.1), shade=160.0, pattern_cells=12), *legs),
+        camera_region=(np.array([0.0, 0.0, 1.4]), np.array([1.5, 1.5, 0.3])),
+    )
+
+
+def _corridor() -> Scene:
+    """A 16 m long, 2 m wide, 2.5 m high corridor along x (x ∈ [0, 16], y ∈ [-1, 1])."""
+    L, Y, H = 16.0, 1.0, 2.5
+    rects = [
+        facing_rectangle(np.array([L / 2, 0, 0.0]), _Z, (L, 2 * Y), Texture("checker", 11), 0),
+        facing_rectangle(np.array([L / 2, 0, H]), -_Z, (L, 2 * Y), Texture("tiles", 12, 0.01), 1),
+        facing_rectangle(np.array([L / 2, Y, H / 2]), np.array([0, -1.0, 0]), (L, H), Texture("panels", 13), 2),
+        facing_rectangle(np.array([L / 2, -Y, H / 2]), np.array([0, 1.0, 0]), (L, H), Texture("plaster", 14), 3),
+        facing_rectangle(np.array([0.0, 0, H / 2]), np.array([1.0, 0, 0]), (2 * Y, H), Texture("poster", 15), 4),
+        facing_rectangle(np.array([L, 0, H / 2]), np.array([-1.0, 0, 0]), (2 * Y, H), Texture("tiles", 16), 5),
+    ]
+    k = 0
+    for x in np.arange(1.5, L - 1.0, 2.5):
+        side = 1 if k % 2 == 0 else -1
+        rects.append(facing_rectangle(np.array([x, side * Y, 1.0]), np.array([0, -side, 0.0]), (0.9, 2.0), Texture("door", 200 + k), 2 if side > 0 else 3))
+        rects.append(facing_rectangle(np.array([x + 1.2, -side * Y, 1.5]), np.array([0, side, 0.0]), (0.7, 0.9), Texture("poster", 300 + k), 3 if side > 0 else 2))
+        k += 1
+    rects += box_rectangles((5.5, -0.7), (0.4, 0.4, 0.5), kind="panels", seed=17, first_plane_id=6)
+    return Scene(
+        name="corridor",
+        rectangles=tuple(rects),
+        spheres=(Sphere(np.array([11.0, 0.7, 0.25]), 0.25, shade=200.0, pattern_cells=8),),
+        cylinders=(Cylinder(np.array([8.0, 0.75]), 0.15, (0.0, 0.6), shade=120.0, pattern_cells=10),),
+        camera_region=(np.array([L / 2, 0.0, 1.4]), np.array([L / 2 - 2.0, 0.4, 0.2])),
+    )
+
+
+def _boxes() -> Scene:
+    """A 16 × 16 m hall (open floor, low walls 2 m high at x, y = ±8, no ceiling) with boxes
+    of several sizes around a free centre."""
+    rects = [facing_rectangle(np.array([0, 0, 0.0]), _Z, (16.0, 16.0), Texture("checker", 21, 0.008), 0)]
+    for k, (c, n, kind) in enumerate([((8.0, 0, 1.0), (-1, 0, 0), "tiles"), ((-8.0, 0, 1.0), (1, 0, 0), "panels"),
+                                      ((0, 8.0, 1.0), (0, -1, 0), "panels"), ((0, -8.0, 1.0), (0, 1, 0), "tiles")]):
+        rects.append(facing_rectangle(np.array(c), np.array(n, float), (16.0, 2.0), Texture(kind, 22 + k), 36 + k))
+    layout = [
+        ((3.5, 0.5), (0.8, 1.2, 1.0), "tiles"),
+        ((-3.4, 2.6), (1.5, 1.0, 1.6), "poster"),
+        ((0.5, -3.6), (1.0, 1.0, 0.5), "panels"),
+        ((-3.2, -2.8), (0.6, 0.6, 2.2), "tiles"),
+        ((3.3, 3.4), (1.2, 0.8, 0.8), "poster"),
+        ((-0.5, 4.0), (2.0, 0.8, 1.2), "panels"),
+        ((4.5, -3.0), (0.5, 0.5, 0.5), "poster"),
+    ]
+    pid = 1
+    for k, (c, s, kind) in enumerate(layout):
+        rects += box_rectangles(c, s, kind=kind, seed=30 + k, first_plane_id=pid)
+        pid += 5
+    return Scene(
+        name="boxes",
+        rectangles=tuple(rects),
+        spheres=(Sphere(np.array([-4.0, 0.0, 0.5]), 0.5, shade=180.0, pattern_cells=12),),
+        cylinders=(
+            Cylinder(np.array([2.8, -2.2]), 0.3, (0.0, 1.8), shade=170.0),
+            Cylinder(np.array([-2.0, -4.0]), 0.2, (0.0, 1.0), shade=110.0),
+            Cylinder(np.array([3.0, 5.0]), 0.4, (0.0, 0.7), shade=200.0),
+        ),
+        camera_region=(np.array([0.0, 0.0, 1.4]), np.array([1.8, 1.8, 0.3])),
+    )
+
+
+_BUILDERS = {"room": _room, "corridor": _corridor, "boxes": _boxes}
+
+
+def builtin_scene(name: str = DEFAULT_SCENE) -> Scene:
+    """One of the built-in scenes `SCENE_NAMES`."""
+    if name not in _BUILDERS:
+        raise ValueError(f"unknown scene {name!r} (built-in: {', '.join(SCENE_NAMES)})")
+    return _BUILDERS[name]()
+
+
+# ----------------------------------------------------------------------------- JSON
+
+def scene_to_dict(scene: Scene) -> dict[str, Any]:
+    """The JSON-able form of a scene:
+
+    {"name": str,
+     "rectangles": [{"p0": [x, y, z], "u": [..], "v": [..], "size": [w, h], "plane_id": int,
+                     "texture": {"kind": str, "seed": int, "texel_m": float}}, ...],
+     "spheres": [{"centre": [x, y, z], "radius": r, "shade": 0..255, "pattern_cells": int}],
+     "cylinders": [{"centre_xy": [x, y], "radius": r, "z_range": [z0, z1], "shade": .., "pattern_cells": ..}],
+     "camera_region": {"centre": [..], "half_extent": [..]} or null}
+    World frame, metres. `spheres`, `cylinders`, `camera_region` and a texture's `texel_m`
+    may be left out."""
+    return {
+        "name": scene.name,
+        "rectangles": [
+            {
+                "p0": r.p0.tolist(), "u": r.u.tolist(), "v": r.v.tolist(), "size": list(r.size), "plane_id": r.plane_id,
+                "texture": {"kind": r.texture.kind, "seed": r.texture.seed, "texel_m": r.texture.texel_m},
+            }
+            for r in scene.rectangles
+        ],
+        "spheres": [{"centre": s.centre.tolist(), "radius": s.radius, "shade": s.shade, "pattern_cells": s.pattern_cells} for s in scene.spheres],
+        "cylinders": [
+            {"centre_xy": c.centre_xy.tolist(), "radius": c.radius, "z_range": list(c.z_range), "shade": c.shade, "pattern_cells": c.pattern_cells}
+            for c in scene.cylinders
+        ],
+        "camera_region": None if scene.camera_region is None else {"centre": scene.camera_region[0].tolist(), "half_extent": scene.camera_region[1].tolist()},
+    }
+
+
+def scene_to_json(scene: Scene) -> str:
+    """The scene as JSON text (see `scene_to_dict`)."""
+    return json.dumps(scene_to_dict(scene), indent=1)
+
+
+def _vector(obj: dict[str, Any], key: str, n: int, where: str) -> np.ndarray:
+    if key not in obj:
+        raise ValueError(f"{where}: missing {key!r}")
+    value = obj[key]
+    if not (isinstance(value, list) and len(value) == n and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)):
+        raise ValueError(f"{where}.{key}: expected {n} numbers")
+    return np.array(value, dtype=float)
+
+
+def _number(obj: dict[str, Any], key: str, where: str, default: float | None = None) -> float:
+    if key not in obj:
+        if default is None:
+            raise ValueError(f"{where}: missing {key!r}")
+        return default
+    value = obj[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{where}.{key}: expected a number")
+    return float(value)
+
+
+def _integer(obj: dict[str, Any], key: str, where: str, default: int | None = None) -> int:
+    if key not in obj:
+        if default is None:
+            raise ValueError(f"{where}: missing {key!r}")
+        return default
+    value = obj[key]
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{where}.{key}: expected an integer")
+    return value
+
+
+def _objects(data: dict[str, Any], key: str) -> list[dict[str, Any]]:
+    items = data.get(key, [])
+    if not isinstance(items, list) or not all(isinstance(x, dict) for x in items):
+        raise ValueError(f"{key}: expected a list of objects")
+    return items
+
+
+def scene_from_dict(data: Any) -> Scene:
+    """A scene from its JSON-able form (`scene_to_dict`); ValueError with a short reason
+    (naming the entry, e.g. `rectangles[2].u: expected 3 numbers`) when malformed."""
+    if not isinstance(data, dict):
+        raise ValueError("expected a JSON object at the top level")
+    rects = []
+    for i, r in enumerate(_objects(data, "rectangles")):
+        where = f"rectangles[{i}]"
+        size = _vector(r, "size", 2, where)
+        tex = r.get("texture")
+        if not isinstance(tex, dict):
+            raise ValueError(f"{where}.texture: expected an object with kind and seed")
+        kind = tex.get("kind")
+        if not isinstance(kind, str):
+            raise ValueError(f"{where}.texture.kind: expected a string")
+        seed = _integer(tex, "seed", f"{where}.texture")
+        if seed < 0:
+            raise ValueError(f"{where}.texture.seed: must be >= 0")
+        texture = Texture(kind, seed, _number(tex, "texel_m", f"{where}.texture", DEFAULT_TEXEL_M))
+        rects.append(Rectangle(
+            p0=_vector(r, "p0", 3, where), u=_vector(r, "u", 3, where), v=_vector(r, "v", 3, where),
+            size=(float(size[0]), float(size[1])), texture=texture, plane_id=_integer(r, "plane_id", where),
+        ))
+    if not rects:
+        raise ValueError("rectangles: expected at least one rectangle")
+    spheres = []
+    for i, s in enumerate(_objects(data, "spheres")):
+        where = f"spheres[{i}]"
+        spheres.append(Sphere(_vector(s, "centre", 3, where), _number(s, "radius", where), _number(s, "shade", where, 170.0), _integer(s, "pattern_cells", where, 8)))
+    cylinders = []
+    for i, c in enumerate(_objects(data, "cylinders")):
+        where = f"cylinders[{i}]"
+        z = _vector(c, "z_range", 2, where)
+        cylinders.append(Cylinder(_vector(c, "centre_xy", 2, where), _number(c, "radius", where), (float(z[0]), float(z[1])), _number(c, "shade", where, 150.0), _integer(c, "pattern_cells", where, 12)))
+    region = data.get("camera_region")
+    camera_region = None
+    if region is not None:
+        if not isinstance(region, dict):
+            raise ValueError("camera_region: expected an object with centre and half_extent")
+        camera_region = (_vector(region, "centre", 3, "camera_region"), _vector(region, "half_extent", 3, "camera_region"))
+    name = data.get("name", "scene")
+    if not isinstance(name, str):
+        raise ValueError("name: expected a string")
+    return Scene(name=name, rectangles=tuple(rects), spheres=tuple(spheres), cylinders=tuple(cylinders), camera_region=camera_region)
+
+
+def load_scene(path: str | os.PathLike[str]) -> Scene:
+    """A scene from a JSON file; SceneFileError (one line naming the file) when it cannot
+    be read or is malformed."""
+    path = pathlib.Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SceneFileError(path, "missing file") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise SceneFileError(path, f"cannot read ({error})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise SceneFileError(path, f"invalid JSON at line {error.lineno} column {error.colno}: {error.msg}") from None
+    try:
+        return scene_from_dict(data)
+    except ValueError as error:
+        raise SceneFileError(path, str(error)) from None
