@@ -170,11 +170,7 @@ class EurocDataset:
     def imu_between(self, t0_ns: int, t1_ns: int) -> ImuData:
         """IMU samples with `t0_ns < t <= t1_ns`: gyro rad/s, accelerometer m/s², in the IMU
         frame (`imu_calibration.T_body_imu`; the identity, i.e. the body frame, in EuRoC)."""
-        if t1_ns < t0_ns:
-            raise ValueError(f"t1_ns {t1_ns} is before t0_ns {t0_ns}")
-        stamps = self.imu.timestamp_ns
-        begin, end = np.searchsorted(stamps, [t0_ns, t1_ns], side="right")
-        return ImuData(timestamp_ns=stamps[begin:end], gyro=self.imu.gyro[begin:end], accel=self.imu.accel[begin:end])
+        return self.imu.between(t0_ns, t1_ns)
 
     def _check_index(self, index: int) -> int:
         n = len(self)

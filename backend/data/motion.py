@@ -112,6 +112,13 @@ class ImuData:
     def __len__(self) -> int:
         return int(self.timestamp_ns.shape[0])
 
+    def between(self, t0_ns: int, t1_ns: int) -> "ImuData":
+        """The samples with `t0_ns < t <= t1_ns`."""
+        if t1_ns < t0_ns:
+            raise ValueError(f"t1_ns {t1_ns} is before t0_ns {t0_ns}")
+        begin, end = np.searchsorted(self.timestamp_ns, [t0_ns, t1_ns], side="right")
+        return ImuData(self.timestamp_ns[begin:end], self.gyro[begin:end], self.accel[begin:end])
+
 
 @dataclasses.dataclass(frozen=True)
 class ImuNoise:

@@ -11,6 +11,7 @@ the depth and plane-instance masks of both cameras, with the plane table.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import pathlib
 from collections.abc import Callable
@@ -18,8 +19,8 @@ from collections.abc import Callable
 import numpy as np
 
 from backend.data.euroc_writer import EurocWriter, GroundTruthRows
-from backend.data.motion import ImuNoise, add_imu_noise, imu_samples, random_trajectory
-from backend.data.render import R_BODY_CAMERA_FORWARD, render_stereo
+from backend.data.motion import ImuData, ImuNoise, add_imu_noise, imu_samples, random_trajectory
+from backend.data.render import R_BODY_CAMERA_FORWARD, View, render_stereo
 from backend.data.scenes import Scene
 from backend.geometry.camera import PinholeCamera
 
@@ -52,40 +53,90 @@ class SequenceSettings:
             raise ValueError("image noise and blur must be >= 0, exposure in [0, 1)")
 
 
+class SyntheticSequence:
+    """A rendered scene read like an EuRoC folder, frames rendered on demand.
+
+    Same reading interface as :class:`backend.data.euroc.EurocDataset`: `timestamps_ns`,
+    `camera` (rectified left camera with the baseline), `imu` / `imu_between`,
+    `T_world_body`, `T_world_rect0` (N, 4, 4), `ground_truth_valid`, `rectified_pair(i)`;
+    plus the ground-truth extras `views(i)` (left and right :class:`View`: image, depth,
+    plane ids) and `plane_table` (id -> (n, d)). Rendering a pair (about 45 per second) is
+    faster than reading its PNGs back, so frames are not written anywhere: the last
+    `cache_frames` pairs are kept in memory, and each frame's image noise has its own seed,
+    so any frame renders the same whenever it is asked for.
+    """
+
+    def __init__(self, scene: Scene, *, settings: SequenceSettings = SequenceSettings(), cache_frames: int = 64) -> None:
+        self.scene = scene
+        self.settings = settings
+        self.camera = CAMERA
+        self.T_body_cam0 = T_BODY_CAM0
+        rng = np.random.default_rng([settings.seed, 0xDA7A])
+        centre, half = scene.camera_region if scene.camera_region is not None else (np.array([0.0, 0.0, 1.4]), np.array([1.0, 1.0, 0.2]))
+        self.trajectory = random_trajectory(rng, centre=np.asarray(centre, float), half_extent=np.asarray(half, float), height=0.0)
+        period_ns = int(round(1e9 / settings.camera_rate_hz))
+        self.timestamps_ns = np.arange(0, int(settings.duration_s * 1e9) + 1, period_ns, dtype=np.int64)
+        self.imu_true = imu_samples(self.trajectory, start_ns=0, end_ns=int(self.timestamps_ns[-1]), rate_hz=settings.imu_rate_hz)
+        self.imu, self.bias_gyro, self.bias_accel = add_imu_noise(self.imu_true, rng, noise=settings.imu_noise)
+        t = self.timestamps_ns * 1e-9
+        T = np.tile(np.eye(4), (len(t), 1, 1))
+        T[:, :3, :3] = self.trajectory.rotation(t)
+        T[:, :3, 3] = self.trajectory.position(t)
+        self.T_world_body = T
+        self.T_world_rect0 = T @ T_BODY_CAM0  # the cameras are rectified already
+        self.ground_truth_valid = np.ones(len(t), bool)
+        self.plane_table = scene.planes
+        self._cache: collections.OrderedDict[int, tuple[View, View]] = collections.OrderedDict()
+        self._cache_frames = cache_frames
+
+    def __len__(self) -> int:
+        return int(self.timestamps_ns.shape[0])
+
+    def imu_between(self, t0_ns: int, t1_ns: int) -> ImuData:
+        """Noisy IMU samples with `t0_ns < t <= t1_ns` (body frame)."""
+        return self.imu.between(t0_ns, t1_ns)
+
+    def views(self, index: int) -> tuple[View, View]:
+        """Left and right views of frame `index` (image, depth along z in m, plane ids)."""
+        index = range(len(self))[index]
+        if index in self._cache:
+            self._cache.move_to_end(index)
+            return self._cache[index]
+        s = self.settings
+        T = self.T_world_rect0[index]
+        gain = 1.0 + s.exposure * np.sin(2.0 * np.pi * self.timestamps_ns[index] * 1e-9 / 7.0)
+        rng = np.random.default_rng([s.seed, 0x1A6E, index])
+        pair = render_stereo(self.scene, self.camera, T[:3, :3], T[:3, 3], gain=gain, blur_sigma_px=s.blur_px, noise_sigma=s.image_noise, rng=rng)
+        self._cache[index] = pair
+        if len(self._cache) > self._cache_frames:
+            self._cache.popitem(last=False)
+        return pair
+
+    def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Left and right uint8 images (H, W) of frame `index`."""
+        left, right = self.views(index)
+        return left.image, right.image
+
+
 def render_sequence(scene: Scene, out: pathlib.Path | str, *, settings: SequenceSettings = SequenceSettings(), on_frame: Callable[[int, int], None] | None = None) -> int:
     """Render `scene` into the EuRoC folder `out`; returns the number of stereo frames.
     `on_frame(done, total)` reports progress."""
-    rng = np.random.default_rng([settings.seed, 0xDA7A])
-    centre, half = scene.camera_region if scene.camera_region is not None else (np.array([0.0, 0.0, 1.4]), np.array([1.0, 1.0, 0.2]))
-    trajectory = random_trajectory(rng, centre=np.asarray(centre, float), half_extent=np.asarray(half, float), height=0.0)
-    frame_period_ns = int(round(1e9 / settings.camera_rate_hz))
-    stamps = np.arange(0, int(settings.duration_s * 1e9) + 1, frame_period_ns, dtype=np.int64)
-    imu = imu_samples(trajectory, start_ns=0, end_ns=int(stamps[-1]), rate_hz=settings.imu_rate_hz)
-    noisy, bias_gyro, bias_accel = add_imu_noise(imu, rng, noise=settings.imu_noise)
-
+    seq = SyntheticSequence(scene, settings=settings, cache_frames=1)
     writer = EurocWriter(out, camera=CAMERA, T_body_cam0=T_BODY_CAM0, imu_noise=settings.imu_noise, camera_rate_hz=settings.camera_rate_hz, imu_rate_hz=settings.imu_rate_hz)
-    writer.write_imu(noisy.timestamp_ns, noisy.gyro, noisy.accel)
-    t_imu = imu.timestamp_ns * 1e-9
-    writer.write_ground_truth(GroundTruthRows(imu.timestamp_ns, trajectory.position(t_imu), trajectory.rotation(t_imu), trajectory.velocity(t_imu), bias_gyro, bias_accel))
-    table = scene.planes
-    ids = sorted(table)
-    plane = np.array([table[i] for i in ids]).reshape(-1, 4)
-    if ids != list(range(len(ids))):  # the table is indexed by id: fill gaps with NaN rows
-        full = np.full((max(ids) + 1, 4), np.nan)
-        full[ids] = plane
-        plane = full
+    writer.write_imu(seq.imu.timestamp_ns, seq.imu.gyro, seq.imu.accel)
+    truth = seq.imu_true
+    t_imu = truth.timestamp_ns * 1e-9
+    traj = seq.trajectory
+    writer.write_ground_truth(GroundTruthRows(truth.timestamp_ns, traj.position(t_imu), traj.rotation(t_imu), traj.velocity(t_imu), seq.bias_gyro, seq.bias_accel))
+    ids = sorted(seq.plane_table)
+    plane = np.full((max(ids, default=-1) + 1, 4), np.nan)  # the table is indexed by id
+    for i in ids:
+        plane[i] = seq.plane_table[i]
     writer.write_planes(plane[:, :3], plane[:, 3])
-
-    t_frames = stamps * 1e-9
-    R_world_body, p_world_body = trajectory.rotation(t_frames), trajectory.position(t_frames)
-    image_rng = np.random.default_rng([settings.seed, 0x1A6E])
-    for k, t in enumerate(stamps):
-        R_world_cam0 = R_world_body[k] @ T_BODY_CAM0[:3, :3]
-        t_world_cam0 = p_world_body[k] + R_world_body[k] @ T_BODY_CAM0[:3, 3]
-        gain = 1.0 + settings.exposure * np.sin(2.0 * np.pi * t_frames[k] / 7.0)
-        left, right = render_stereo(scene, CAMERA, R_world_cam0, t_world_cam0, gain=gain, blur_sigma_px=settings.blur_px, noise_sigma=settings.image_noise, rng=image_rng)
+    for k, t in enumerate(seq.timestamps_ns):
+        left, right = seq.views(k)
         writer.add_frame(int(t), images=(left.image, right.image), depths=(left.depth, right.depth), planes=(left.plane_id, right.plane_id))
         if on_frame is not None:
-            on_frame(k + 1, len(stamps))
+            on_frame(k + 1, len(seq))
     writer.close()
-    return len(stamps)
+    return len(seq)
