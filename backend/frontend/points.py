@@ -206,11 +206,13 @@ def _refine_disparity(left: np.ndarray, right: np.ndarray, u_left: np.ndarray, v
     return refined, ok
 
 
-def stereo_points(left: np.ndarray, right: np.ndarray, *, camera: PinholeCamera, settings: PointSettings = PointSettings()) -> StereoPoints:
+def stereo_points(left: np.ndarray, right: np.ndarray, *, camera: PinholeCamera, settings: PointSettings = PointSettings(), left_keypoints: Keypoints | None = None) -> StereoPoints:
     """Detect ORB points in the rectified left and right uint8 images (H, W), match them
-    along rows and triangulate in the left rectified camera frame (`camera` with baseline)."""
+    along rows and triangulate in the left rectified camera frame (`camera` with baseline).
+    `left_keypoints`: the left image's keypoints when already detected (tracking detects
+    them on every frame; the right image is only needed for keyframes)."""
     s = settings
-    kp_left = detect_points(left, settings=s)
+    kp_left = detect_points(left, settings=s) if left_keypoints is None else left_keypoints
     kp_right = detect_points(right, settings=s)
     uv_left = kp_left.uv.copy()
     n = uv_left.shape[0]

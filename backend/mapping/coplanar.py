@@ -150,3 +150,152 @@ def plane_hull(n: np.ndarray, d: float, p_world: np.ndarray) -> np.ndarray:
     if np.cross(B[:, 0], B[:, 1]) @ n < 0:
         ring = ring[::-1]
     return origin + ring @ B.T
+
+
+@dataclasses.dataclass
+class PlaneSet:
+    """The map's planes: world `n·X + d = 0` (m) and the consensus of each plane's last
+    accepted detection (inlier fraction, candidates tested). Plane ids are list indices."""
+
+    n: list[np.ndarray] = dataclasses.field(default_factory=list)
+    d: list[float] = dataclasses.field(default_factory=list)
+    consensus: list[tuple[float, int]] = dataclasses.field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.n)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Normals (K, 3) and offsets (K,)."""
+        return np.array(self.n).reshape(-1, 3), np.array(self.d, dtype=float).reshape(-1)
+
+
+@dataclasses.dataclass(frozen=True)
+class KeyframeDetection:
+    """The co-planar detection of one keyframe: per candidate set (one per instance that
+    reached `min_candidates`) its instance label, size, consensus count, verdict and the
+    plane id it merged into or created (-1: rejected); and per feature given the RANSAC
+    state (`point_state`, `line_state`: 0 not tested, 1 inlier, 2 outlier)."""
+
+    instance: tuple[int, ...]
+    candidates: tuple[int, ...]
+    inliers: tuple[int, ...]
+    accepted: tuple[bool, ...]
+    plane: tuple[int, ...]
+    point_state: np.ndarray
+    line_state: np.ndarray
+
+
+def detect_keyframe_planes(
+    *,
+    point_ids: np.ndarray,
+    point_label: np.ndarray,
+    p_world: np.ndarray,
+    line_ids: np.ndarray,
+    line_label: np.ndarray,
+    segments_world: np.ndarray,
+    point_plane: np.ndarray,
+    line_plane: np.ndarray,
+    planes: PlaneSet,
+    rng: np.random.Generator,
+    settings: CoplanarSettings = CoplanarSettings(),
+) -> KeyframeDetection:
+    """The paper's two stages on one keyframe (§III-A). The triangulated features it sees,
+    points `point_ids` at world `p_world` (P, 3) and segments `line_ids` at
+    `segments_world` (L, 2, 3), carry the instance label of the segmentation
+    (`point_label`, `line_label`, -1: none). Each instance with at least `min_candidates`
+    features goes through RANSAC with Eq. 4's distance; at a consensus of θ_cp the plane is
+    accepted and merges with the plane most of its inliers already belong to, else with one
+    that agrees in normal and offset (`match_plane`), else it is added to `planes`. Inliers
+    without a plane join it: `point_plane` / `line_plane` (indexed by landmark id) are
+    updated in place, and so is `planes`."""
+    p_state = np.zeros(len(point_ids), np.uint8)
+    l_state = np.zeros(len(line_ids), np.uint8)
+    inst: list[int] = []
+    cands: list[int] = []
+    inl: list[int] = []
+    acc: list[bool] = []
+    pid: list[int] = []
+    for q in np.unique(np.concatenate([point_label, line_label]).astype(int)):
+        if q < 0:
+            continue
+        ip, il = np.flatnonzero(point_label == q), np.flatnonzero(line_label == q)
+        total = len(ip) + len(il)
+        if total < settings.min_candidates:
+            continue
+        cons = ransac_plane(p_world[ip], segments_world[il], rng=rng, settings=settings)
+        inst.append(int(q))
+        cands.append(total)
+        inl.append(0 if cons is None else int(cons.point_inlier.sum() + cons.line_inlier.sum()))
+        acc.append(cons is not None and cons.accepted)
+        if cons is None:
+            pid.append(-1)
+            continue
+        p_state[ip] = np.where(cons.point_inlier, 1, 2)
+        l_state[il] = np.where(cons.line_inlier, 1, 2)
+        if not cons.accepted:
+            pid.append(-1)
+            continue
+        gp, gl = point_ids[ip[cons.point_inlier]], line_ids[il[cons.line_inlier]]
+        owners = np.concatenate([point_plane[gp], line_plane[gl]])
+        owners = owners[owners >= 0]
+        if len(owners) * 2 > len(gp) + len(gl):
+            j = int(np.bincount(owners).argmax())
+        else:
+            j = match_plane(cons.n, cons.d, *planes.arrays(), settings=settings)
+        if j < 0:
+            j = len(planes)
+            planes.n.append(cons.n)
+            planes.d.append(cons.d)
+            planes.consensus.append((cons.fraction, total))
+        else:
+            planes.consensus[j] = (cons.fraction, total)
+        pid.append(j)
+        point_plane[gp[point_plane[gp] < 0]] = j
+        line_plane[gl[line_plane[gl] < 0]] = j
+    return KeyframeDetection(tuple(inst), tuple(cands), tuple(inl), tuple(acc), tuple(pid), p_state, l_state)
+
+
+def associate_to_planes(
+    p_world: np.ndarray,
+    segments_world: np.ndarray,
+    planes_n: np.ndarray,
+    planes_d: np.ndarray,
+    hulls: list[np.ndarray],
+    *,
+    threshold_m: float,
+    margin_m: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """New landmarks against the existing planes (paper §III-A, last step): each point
+    (P, 3) and segment (L, 2, 3) joins the plane nearest by Eq. 4's distance, if that is
+    below `threshold_m` and it lies within the plane's inlier hull grown by `margin_m`.
+    Returns the plane of each point and segment (-1: none)."""
+    out = []
+    for kind, where, count in (("point", p_world, len(p_world)), ("line", segments_world, len(segments_world))):
+        if count == 0 or len(planes_n) == 0:
+            out.append(np.full(count, -1))
+            continue
+        if kind == "point":
+            dist = np.abs(where @ planes_n.T + planes_d)
+            centre = where
+        else:
+            dist = np.max(np.abs(where @ planes_n.T + planes_d), axis=1)
+            centre = where.mean(axis=1)
+        for q, hull in enumerate(hulls):
+            inside = near_hull(centre, planes_n[q], planes_d[q], hull, margin=margin_m) if len(hull) else np.zeros(count, bool)
+            dist[~inside, q] = np.inf
+        best = np.argmin(dist, axis=1)
+        ok = dist[np.arange(count), best] < threshold_m
+        out.append(np.where(ok, best, -1))
+    return out[0], out[1]
+
+
+def near_hull(p_world: np.ndarray, n: np.ndarray, d: float, hull_world: np.ndarray, *, margin: float) -> np.ndarray:
+    """Whether points project into the convex polygon `hull_world` (counter-clockwise seen
+    from +n) grown by `margin` metres."""
+    a = hull_world
+    b = np.roll(hull_world, -1, axis=0)
+    edge = b - a
+    length = np.linalg.norm(edge, axis=1)
+    # Signed distance to the left of each edge, seen from +n.
+    side = np.einsum("j,mkj->mk", n, np.cross(edge[None], p_world[:, None, :] - a[None]))
+    return np.all(side >= -margin * length[None], axis=1)

@@ -42,8 +42,6 @@ from backend.optim.structure import HessianStructure, hessian_structure
 from backend.pipeline.buffers import RowBuffer
 from backend.pipeline.engine import EndOfSequence
 from backend.pipeline.snapshot import (
-    INLIER,
-    OUTLIER,
     Detection,
     LineLandmarks,
     Metrics,
@@ -184,9 +182,8 @@ class SimEngine:
         self._l_anchor = np.full(L, -1)
         self._l_anchor_uv = np.zeros((L, 4))
         self._l_plane = np.full(L, -1)
-        self._plane_n: list[np.ndarray] = []
-        self._plane_d: list[float] = []
-        self._plane_consensus: list[tuple[float, int]] = []
+        self._planes = coplanar.PlaneSet()
+        self._plane_n, self._plane_d, self._plane_consensus = self._planes.n, self._planes.d, self._planes.consensus
         self._window: _Window | None = None
         self._last: Snapshot | None = None
 
@@ -372,85 +369,32 @@ class SimEngine:
 
     def _detect_planes(self, k: int, new_points: np.ndarray, new_lines: np.ndarray, rng: np.random.Generator) -> tuple[Detection, tuple]:
         """Co-planar detection on keyframe k (paper §III-A)."""
-        cs = self.settings.coplanar
         obs = self._obs[k]
         p_sel = self._p_ok[obs.point_id]
         l_sel = self._l_ok[obs.line_id]
-        p_ids, p_lab = obs.point_id[p_sel], obs.point_label[p_sel]
-        l_ids, l_lab = obs.line_id[l_sel], obs.line_label[l_sel]
-        segs = self._segments_world(l_ids)
-        p_state = np.zeros(len(p_ids), np.uint8)
-        l_state = np.zeros(len(l_ids), np.uint8)
-        inst, cands, inl, acc, pid = [], [], [], [], []
-        for q in np.unique(np.concatenate([p_lab, l_lab])):
-            if q < 0:
-                continue
-            ip, il = np.flatnonzero(p_lab == q), np.flatnonzero(l_lab == q)
-            total = len(ip) + len(il)
-            if total < cs.min_candidates:
-                continue
-            cons = coplanar.ransac_plane(self._p_world[p_ids[ip]], segs[il], rng=rng, settings=cs)
-            inst.append(int(q))
-            cands.append(total)
-            inl.append(0 if cons is None else int(cons.point_inlier.sum() + cons.line_inlier.sum()))
-            acc.append(cons is not None and cons.accepted)
-            if cons is None:
-                pid.append(-1)
-                continue
-            p_state[ip] = np.where(cons.point_inlier, INLIER, OUTLIER)
-            l_state[il] = np.where(cons.line_inlier, INLIER, OUTLIER)
-            if not cons.accepted:
-                pid.append(-1)
-                continue
-            gp, gl = p_ids[ip[cons.point_inlier]], l_ids[il[cons.line_inlier]]
-            # Merge: the plane most of the inliers already belong to, else one that agrees
-            # in normal and offset, else a new plane.
-            owners = np.concatenate([self._p_plane[gp], self._l_plane[gl]])
-            owners = owners[owners >= 0]
-            if len(owners) * 2 > len(gp) + len(gl):
-                j = int(np.bincount(owners).argmax())
-            else:
-                j = coplanar.match_plane(cons.n, cons.d, np.array(self._plane_n).reshape(-1, 3), np.array(self._plane_d), settings=cs)
-            if j < 0:
-                j = len(self._plane_n)
-                self._plane_n.append(cons.n)
-                self._plane_d.append(cons.d)
-                self._plane_consensus.append((cons.fraction, total))
-            else:
-                self._plane_consensus[j] = (cons.fraction, total)
-            pid.append(j)
-            self._p_plane[gp[self._p_plane[gp] < 0]] = j
-            self._l_plane[gl[self._l_plane[gl] < 0]] = j
+        p_ids, l_ids = obs.point_id[p_sel], obs.line_id[l_sel]
+        det = coplanar.detect_keyframe_planes(
+            point_ids=p_ids, point_label=obs.point_label[p_sel], p_world=self._p_world[p_ids],
+            line_ids=l_ids, line_label=obs.line_label[l_sel], segments_world=self._segments_world(l_ids),
+            point_plane=self._p_plane, line_plane=self._l_plane, planes=self._planes, rng=rng, settings=self.settings.coplanar,
+        )
         self._associate_new(new_points, new_lines)
-        detection = Detection(tuple(inst), tuple(cands), tuple(inl), tuple(acc), tuple(pid))
-        return detection, (p_ids, p_state, l_ids, l_state)
+        detection = Detection(det.instance, det.candidates, det.inliers, det.accepted, det.plane)
+        return detection, (p_ids, det.point_state, l_ids, det.line_state)
 
     def _associate_new(self, new_points: np.ndarray, new_lines: np.ndarray) -> None:
         """New landmarks join the nearest existing plane they lie on (Eq. 4 distance) when
         they fall within its inliers' extent (with a margin)."""
         if not self._plane_n:
             return
-        cs = self.settings.coplanar
-        N, D = np.array(self._plane_n), np.array(self._plane_d)
-        for kind, ids in (("point", new_points), ("line", new_lines)):
-            ids = ids[(self._p_plane if kind == "point" else self._l_plane)[ids] < 0]
-            if len(ids) == 0:
-                continue
-            if kind == "point":
-                dist = np.abs(self._p_world[ids] @ N.T + D)
-                where = self._p_world[ids]
-            else:
-                segs = self._segments_world(ids)
-                dist = np.max(np.abs(segs @ N.T + D), axis=1)
-                where = segs.mean(axis=1)
-            for q in range(len(N)):
-                hull = self._hull(q)
-                inside = _near_hull(where, N[q], D[q], hull, margin=0.5) if len(hull) else np.zeros(len(ids), bool)
-                dist[~inside, q] = np.inf
-            best = np.argmin(dist, axis=1)
-            ok = dist[np.arange(len(ids)), best] < cs.threshold_m
-            target = self._p_plane if kind == "point" else self._l_plane
-            target[ids[ok]] = best[ok]
+        pts = new_points[self._p_plane[new_points] < 0]
+        lns = new_lines[self._l_plane[new_lines] < 0]
+        N, D = self._planes.arrays()
+        q_p, q_l = coplanar.associate_to_planes(
+            self._p_world[pts], self._segments_world(lns), N, D, [self._hull(q) for q in range(len(N))], threshold_m=self.settings.coplanar.threshold_m,
+        )
+        self._p_plane[pts[q_p >= 0]] = q_p[q_p >= 0]
+        self._l_plane[lns[q_l >= 0]] = q_l[q_l >= 0]
 
     def _hull(self, q: int) -> np.ndarray:
         pts = [self._p_world[(self._p_plane == q) & self._p_ok]]
@@ -656,18 +600,6 @@ class SimEngine:
             window=frozen(np.arange(w0, n)), points=points, lines=lines, planes=tuple(planes), detection=detection,
             report=report, hessian=hessian, metrics=Metrics(rmse_cm=rmse, ate_cm=ate),
         )
-
-
-def _near_hull(p_world: np.ndarray, n: np.ndarray, d: float, hull_world: np.ndarray, *, margin: float) -> np.ndarray:
-    """Whether points project into the convex polygon `hull_world` (counter-clockwise seen
-    from +n) grown by `margin` metres."""
-    a = hull_world
-    b = np.roll(hull_world, -1, axis=0)
-    edge = b - a
-    length = np.linalg.norm(edge, axis=1)
-    # Signed distance to the left of each edge, seen from +n.
-    side = np.einsum("j,mkj->mk", n, np.cross(edge[None], p_world[:, None, :] - a[None]))
-    return np.all(side >= -margin * length[None], axis=1)
 
 
 __all__ = ["SimEngine", "SimSettings", "VARIANTS"]

@@ -1,8 +1,10 @@
-"""Motion-only pose refinement against known world points (the tracking step of DESIGN §5).
+"""Tracking (DESIGN §5.2): motion-only pose refinement against known world points and
+lines, matching map points to keypoints by projection, and relocalization by PnP.
 
-Gauss-Newton on the pixel reprojection error of one pose `T_world_camera`, with the
-optimizer's retraction (`R Exp(δθ)`, `t + δt`) and a Cauchy kernel; the points are held
-fixed. The analytic Jacobian is the optimizer's (`factors.point_reprojection`).
+Refinement is Gauss-Newton on the pixel reprojection error of one pose `T_world_camera`,
+with the optimizer's retraction (`R Exp(δθ)`, `t + δt`) and a Cauchy kernel; the landmarks
+are held fixed. The analytic Jacobians are the optimizer's (`factors.point_reprojection`,
+`factors.line_reprojection`).
 """
 
 from __future__ import annotations
@@ -45,6 +47,19 @@ def _cauchy(s2: np.ndarray, c2: float) -> tuple[np.ndarray, np.ndarray]:
     return c2 * np.log1p(s2 / c2), 1.0 / (1.0 + s2 / c2)
 
 
+def line_reprojection(camera: PinholeCamera, R_world_camera: np.ndarray, t_world_camera: np.ndarray, m_world: np.ndarray, v_world: np.ndarray, segments_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Endpoint-to-line residuals (M, 2) in pixels and their Jacobians (M, 2, 6) w.r.t. the
+    pose's `(δθ, δt)` of world lines (Plücker, (M, 3) each) observed as left-image segments
+    `segments_uv` (M, 4) = start and end pixels."""
+    M = len(m_world)
+    x_s, x_e = camera.normalize(segments_uv[:, :2]), camera.normalize(segments_uv[:, 2:])
+    res, J = factors.line_reprojection(
+        camera, np.ascontiguousarray(m_world, dtype=float), np.ascontiguousarray(v_world, dtype=float), np.zeros((M, 6, 1)), np.arange(M),
+        R_world_camera[None], t_world_camera[None], np.zeros(M, dtype=np.int64), np.zeros((M, 3)), x_s, x_e,
+    )
+    return res, J[:, :, 1:]
+
+
 def refine_pose(
     camera: PinholeCamera,
     R_world_camera: np.ndarray,
@@ -52,28 +67,39 @@ def refine_pose(
     p_world: np.ndarray,
     uv: np.ndarray,
     *,
+    lines_world: tuple[np.ndarray, np.ndarray] | None = None,
+    segments_uv: np.ndarray | None = None,
     sigma_px: float = 1.0,
     cauchy: float = 3.0,
     max_iterations: int = 10,
 ) -> PoseRefinement:
-    """Refine one pose from world points (M, 3) and their pixels (M, 2).
+    """Refine one pose from world points (M, 3) and their left pixels (M, 2), and optionally
+    world lines `lines_world = (m, v)` (L, 3) observed as left segments `segments_uv` (L, 4).
 
     Iteratively reweighted Gauss-Newton with a Cauchy kernel of scale `cauchy` (whitened
-    units); a step that raises the cost is halved (at most 4 times). With fewer than three
-    usable points, the pose is returned unchanged.
+    units) on every point and line residual; a step that raises the cost is halved (at
+    most 4 times). With fewer than three usable features, the pose is returned unchanged.
+    `inliers` counts points whose whitened error is below 3 (lines are not counted).
     """
     R, t = np.array(R_world_camera, dtype=float), np.array(t_world_camera, dtype=float)
     c2 = cauchy**2
+    n_lines = 0 if lines_world is None or segments_uv is None else len(segments_uv)
 
     def cost_of(R_: np.ndarray, t_: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         res, J, depth = reprojection(camera, R_, t_, p_world, uv)
-        res = res / sigma_px
+        valid = depth > 0
+        if n_lines:
+            res_l, J_l = line_reprojection(camera, R_, t_, lines_world[0], lines_world[1], segments_uv)
+            res, J = np.concatenate([res, res_l]), np.concatenate([J, J_l])
+            valid = np.concatenate([valid, np.all(np.isfinite(res_l), axis=1)])
+        res = np.where(valid[:, None], res, 0.0) / sigma_px
+        J = np.where(valid[:, None, None], J, 0.0)
         s2 = np.sum(res**2, axis=1)
-        s2[depth <= 0] = 1e6 * c2
+        s2[~valid] = 1e6 * c2
         rho, w = _cauchy(s2, c2)
-        return 0.5 * float(np.sum(rho)), res, J / sigma_px, np.where(depth > 0, w, 0.0)
+        return 0.5 * float(np.sum(rho)), res, J / sigma_px, np.where(valid, w, 0.0)
 
-    if len(p_world) < 3:
+    if len(p_world) + n_lines < 3:
         return PoseRefinement(R, t, 0.0, 0.0, 0, 0)
     cost, res, J, w = cost_of(R, t)
     initial = cost
@@ -100,5 +126,87 @@ def refine_pose(
         cost, res, J, w = new
         if improvement <= 1e-10 * max(cost, 1e-300) or np.max(np.abs(step * delta)) < 1e-10:
             break
-    inliers = int(np.sum(np.sum(res**2, axis=1) < 9.0))
+    inliers = int(np.sum(np.sum(res[: len(p_world)] ** 2, axis=1) < 9.0))
     return PoseRefinement(R, t, initial, cost, iterations, inliers)
+
+
+def match_by_projection(
+    camera: PinholeCamera,
+    R_world_camera: np.ndarray,
+    t_world_camera: np.ndarray,
+    p_world: np.ndarray,
+    descriptors: np.ndarray,
+    keypoints_uv: np.ndarray,
+    keypoint_descriptors: np.ndarray,
+    *,
+    radius_px: float,
+    max_hamming: int,
+    ratio: float,
+    min_depth_m: float = 0.1,
+) -> np.ndarray:
+    """Match map points (P, 3) world with ORB descriptors (P, 32) to the keypoints (N, 2)
+    of an image taken from the predicted pose: a point's candidates are the keypoints
+    within `radius_px` of its projection; the closest descriptor wins if its Hamming
+    distance is `<= max_hamming` and `< ratio` times the second closest (one-to-one).
+    Returns (P,) keypoint index per map point, -1 where unmatched."""
+    from scipy.spatial import cKDTree
+
+    from backend.frontend.points import best_matches, pair_hamming
+
+    out = np.full(len(p_world), -1, dtype=np.int64)
+    if len(p_world) == 0 or len(keypoints_uv) == 0:
+        return out
+    p_cam = (p_world - t_world_camera) @ R_world_camera
+    front = p_cam[:, 2] > min_depth_m
+    uv = np.full((len(p_world), 2), -1e6)
+    uv[front] = camera.project(p_cam[front])
+    visible = np.flatnonzero(front & camera.in_image(uv))
+    if len(visible) == 0:
+        return out
+    pairs = cKDTree(uv[visible]).sparse_distance_matrix(cKDTree(keypoints_uv), radius_px, output_type="ndarray")
+    if len(pairs) == 0:
+        return out
+    rows, cols = visible[pairs["i"]], pairs["j"].astype(np.int64)
+    dist = pair_hamming(descriptors[rows], keypoint_descriptors[cols])
+    return best_matches(rows, cols, dist, n_rows=len(p_world), max_distance=max_hamming, ratio=ratio)
+
+
+def relocalize(
+    camera: PinholeCamera,
+    p_world: np.ndarray,
+    descriptors: np.ndarray,
+    keypoints_uv: np.ndarray,
+    keypoint_descriptors: np.ndarray,
+    *,
+    max_hamming: int,
+    ratio: float,
+    min_inliers: int,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Pose without a prediction: descriptor matches between map points and keypoints
+    (no spatial gate), then PnP inside RANSAC (OpenCV, 3 px). Returns `(R_world_camera,
+    t_world_camera, match)` with `match` (P,) the keypoint of each map point (-1: none or
+    outlier), or None with fewer than `min_inliers` inliers."""
+    import cv2
+
+    from backend.frontend.points import best_matches, hamming_distances
+
+    if len(p_world) < min_inliers or len(keypoints_uv) < min_inliers:
+        return None
+    dist = hamming_distances(descriptors, keypoint_descriptors)
+    rows, cols = np.nonzero(dist <= max_hamming)
+    match = best_matches(rows, cols, dist[rows, cols], n_rows=len(p_world), max_distance=max_hamming, ratio=ratio)
+    i = np.flatnonzero(match >= 0)
+    if len(i) < min_inliers:
+        return None
+    cv2.setRNGSeed(seed)
+    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+        p_world[i].astype(np.float64), keypoints_uv[match[i]].astype(np.float64), camera.K, None,
+        iterationsCount=200, reprojectionError=3.0, confidence=0.999, flags=cv2.SOLVEPNP_EPNP,
+    )
+    if not ok or inliers is None or len(inliers) < min_inliers:
+        return None
+    R_camera_world = cv2.Rodrigues(rvec)[0]
+    keep = np.full(len(p_world), -1, dtype=np.int64)
+    keep[i[inliers.ravel()]] = match[i[inliers.ravel()]]
+    return R_camera_world.T, -R_camera_world.T @ tvec.ravel(), keep
