@@ -50,8 +50,12 @@ def _report_markdown(s: Snapshot) -> str:
         for q, c, i, a, p in zip(det.instance, det.candidates, det.inliers, det.accepted, det.plane)
     )
     detection = f"| instance | candidates | consensus | result |\n|---|---|---|---|\n{rows}" if rows else "no candidate set reached the size threshold"
+    notes = f"**{s.message}**\n\n" if s.message else ""
+    if s.tracking is not None and s.image is None:  # otherwise shown beside the image
+        notes += images.tracking_markdown(s.tracking) + "\n\n"
     return (
         f"**keyframe {s.keyframe}** · {r.variant} · window {r.window} + {r.fixed_poses} fixed\n\n"
+        f"{notes}"
         f"iterations {r.iterations} ({'converged' if r.converged else 'not converged'}) · "
         f"cost {r.initial_cost:.4g} → {r.final_cost:.4g}\n\n"
         f"time (ms): {stages}\n\n"
@@ -97,6 +101,10 @@ class Debugger:
             self.reset_button = gui.add_button("Reset")
             self.slider = gui.add_slider("Keyframe", min=0, max=1, step=1, initial_value=0, disabled=True)
             self.keyframe_label = gui.add_text("Shown", initial_value="none", disabled=True)
+        with gui.add_folder("Keyframe image", visible=False) as self.image_folder:
+            self.keyframe_image = gui.add_image(images.blank(), label="left image", format="jpeg", jpeg_quality=90)
+            self.tracking_text = gui.add_markdown("")
+            self.image_legend = gui.add_markdown(images.KEYFRAME_LEGEND)
         with gui.add_folder("Hessian"):
             self.hessian_legend = gui.add_markdown("no window optimized yet")
             self.hessian_image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
@@ -252,7 +260,11 @@ class Debugger:
             self.slider.max = max(snapshot.keyframe, first + 1)
             self.slider.min = first
             self.slider.value = snapshot.keyframe
-            self.status.content = f"**{self.engine.source}**: keyframe {snapshot.keyframe} · {snapshot.variant}" + (" · playing" if self._playing.is_set() else "")
+            self.status.content = (
+                f"**{self.engine.source}**: keyframe {snapshot.keyframe} · {snapshot.variant}"
+                + (" · playing" if self._playing.is_set() else "")
+                + (f"\n\n**{snapshot.message}**" if snapshot.message else "")
+            )
         self._update_compare()
 
     def _show(self, snapshot: Snapshot) -> None:
@@ -266,6 +278,12 @@ class Debugger:
         with self.server.atomic():
             if self.variant.value != snapshot.variant:
                 self.variant.value = snapshot.variant
+            if snapshot.image is not None:
+                self.keyframe_image.image = images.keyframe_image(snapshot.image)
+                self.keyframe_image.label = f"keyframe {snapshot.keyframe}: left image"
+                self.tracking_text.content = images.tracking_markdown(snapshot.tracking)
+            if self.image_folder.visible != (snapshot.image is not None):
+                self.image_folder.visible = snapshot.image is not None
             if snapshot.hessian is not None:
                 self.hessian_image.image = images.hessian_image(snapshot.hessian)
                 self.hessian_legend.content = images.legend_markdown(snapshot.hessian)

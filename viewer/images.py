@@ -1,5 +1,6 @@
-"""GUI images of the Hessian: the live sparsity pattern and the -wo | -r | -w comparison.
-PNG only: JPEG blurs a one-pixel pattern."""
+"""GUI images: the Hessian's live sparsity pattern and the -wo | -r | -w comparison (PNG
+only: JPEG blurs a one-pixel pattern), and the keyframe's left image with its features
+(JPEG, drawn by the backend), with their legends."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import numpy as np
 
 from backend.optim.hessian_image import render_hessian, render_side_by_side
 from backend.optim.structure import HessianStructure
+from backend.pipeline.overlay import decode_keyframe_image
+from backend.pipeline.snapshot import KeyframeImage, Tracking
 
 IMAGE_PX = 360
 
@@ -34,4 +37,28 @@ def legend_markdown(structure: HessianStructure) -> str:
     return (
         f"**{structure.variant}**: {structure.items} items, {structure.params} params, {structure.nnz:,} nonzeros\n\n"
         f"| group | items | params |\n|---|---|---|\n{rows}"
+    )
+
+
+KEYFRAME_LEGEND = (
+    "**points**: green tracked · cyan new (stereo) · grey dot unused · red outlier of the pose refinement  \n"
+    "**segments** and **tinted regions**: colour of their plane (grey segment: no plane)  \n"
+    "**light grey, hatched region**: plane instance segmented but rejected by the co-planar RANSAC (or not tested)"
+)
+
+
+def keyframe_image(image: KeyframeImage) -> np.ndarray:
+    """RGB image (H, W, 3) uint8 of a snapshot's keyframe image."""
+    return decode_keyframe_image(image)
+
+
+def tracking_markdown(tracking: Tracking | None) -> str:
+    """The tracking figures since the previous keyframe, or an empty string."""
+    if tracking is None:
+        return ""
+    t = tracking
+    return (
+        f"**tracking** since the previous keyframe: {t.frames} frames · {t.lost_frames} lost · "
+        f"{t.reinitializations} re-initializations  \n"
+        f"tracked on the keyframe: {t.tracked_points} points · {t.tracked_lines} lines"
     )

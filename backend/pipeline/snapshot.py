@@ -143,6 +143,31 @@ class Metrics:
 
 
 @dataclasses.dataclass(frozen=True)
+class KeyframeImage:
+    """The keyframe's left image with what the front end found on it, drawn by
+    `backend.pipeline.overlay` (plane masks tinted by plane, points, segments), stored as
+    JPEG bytes (a few tens of kB, so hundreds of snapshots stay cheap). `width`, `height`:
+    pixels of the encoded image."""
+
+    jpeg: bytes
+    width: int
+    height: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Tracking:
+    """Tracking since the previous snapshot: frames processed (keyframe included), frames
+    whose pose could not be tracked (predicted by the motion model instead), map
+    re-initializations after a loss, and the tracked points / lines of the keyframe."""
+
+    frames: int
+    lost_frames: int
+    reinitializations: int
+    tracked_points: int
+    tracked_lines: int
+
+
+@dataclasses.dataclass(frozen=True)
 class Snapshot:
     """Everything about one keyframe step. `keyframe` is the index of the newest keyframe;
     `window` are the keyframe indices optimized in this step."""
@@ -162,6 +187,8 @@ class Snapshot:
     hessian: HessianStructure | None
     metrics: Metrics
     message: str = ""
+    image: KeyframeImage | None = None   # image pipelines only
+    tracking: Tracking | None = None     # image pipelines only
 
     @property
     def variant(self) -> str:
