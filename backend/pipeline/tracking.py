@@ -105,8 +105,9 @@ def refine_pose(
     initial = cost
     iterations = 0
     for _ in range(max_iterations):
-        H = np.einsum("m,mki,mkj->ij", w, J, J)
-        g = -np.einsum("m,mki,mk->i", w, J, res)
+        Jw = J * w[:, None, None]
+        H = np.tensordot(Jw, J, axes=([0, 1], [0, 1]))
+        g = -np.tensordot(Jw, res, axes=([0, 1], [0, 1]))
         try:
             delta = np.linalg.solve(H + 1e-9 * np.eye(6), g)
         except np.linalg.LinAlgError:

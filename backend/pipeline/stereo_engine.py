@@ -1,0 +1,975 @@
+"""The stereo SLAM pipeline of the paper (§III, stereo branch) as a step-able engine.
+
+Input: anything with the reader interface of :class:`backend.data.euroc.EurocDataset`
+(`timestamps_ns`, `camera` rectified with its baseline, `rectified_pair(i)`,
+`T_world_rect0`, `ground_truth_valid`), such as an EuRoC folder or a
+:class:`backend.data.synthetic.SyntheticSequence`. One :meth:`StereoEngine.step` reads frames
+until the next keyframe and returns its snapshot.
+
+Every frame: ORB on the left image (point D&M), the pose predicted by a constant-velocity
+motion model, map points of the local map (those the window's keyframes see) matched by
+projection and the pose refined against them with a Cauchy kernel; when that finds too few
+inliers, relocalization by PnP-RANSAC against the local map; when that fails too, the frame
+is *lost* (its pose is the prediction). The paper's keyframe rule (at least 20 frames since
+the last keyframe, more than 40 tracked points, at least 10 % new keypoints) with a quality
+fallback (tracked points below a share of the last keyframe's).
+
+Every keyframe:
+1. stereo matching of its ORB points (right image), LSD + LBD segments in both images,
+   stereo-matched, and matched to the local map's lines by projection (line D&M);
+2. pose refinement against the matched points and lines (Cauchy);
+3. new landmarks from stereo for the features no map landmark claimed (points: depth from
+   the disparity; lines: the two triangulated endpoints);
+4. plane-instance segmentation (plane seg.) and the co-planar detection (plane fitting):
+   per instance, RANSAC with Eq. 4 over its triangulated features, θ_cp = 80 %, merging with
+   existing planes; new landmarks tested against existing planes;
+5. sliding-window bundle adjustment with the selected variant (Cauchy kernel on the
+   reprojection residuals, stereo observations as a second camera `baseline` to the right),
+   older keyframes that see window landmarks held fixed;
+6. culling: observations that stay far off after the solve are dropped, landmarks whose
+   anchor observation is off or that no later keyframe re-observes are removed.
+
+When a frame has features but neither tracking nor relocalization succeeds, the map is
+re-initialized at the predicted pose: a new keyframe starts a new map segment (the window
+never reaches back across it), and the snapshot reports it. Frames without features (black
+frames) are lost and predicted until features return.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+
+from backend.eval.trajectory import ate_rmse, translational_rmse
+from backend.frontend.lines import LineSettings, Segments, StereoSegments, stereo_segments
+from backend.frontend.points import Keypoints, PointSettings, best_matches, detect_points, pair_hamming, stereo_points
+from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
+from backend.geometry import line as line_geo
+from backend.geometry import plane as plane_geo
+from backend.geometry import so3
+from backend.geometry.camera import PinholeCamera
+from backend.geometry.se3 import Poses
+from backend.mapping import coplanar
+from backend.optim import factors
+from backend.optim.problem import Observations, ProblemData, build_problem, parse_variant
+from backend.optim.solver import optimize
+from backend.optim.structure import HessianStructure, hessian_structure
+from backend.pipeline.buffers import RowBuffer
+from backend.pipeline.engine import EndOfSequence
+from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED, draw_keyframe_image
+from backend.pipeline.snapshot import (
+    Detection,
+    KeyframeImage,
+    LineLandmarks,
+    Metrics,
+    OptimizationReport,
+    PlaneLandmark,
+    PointLandmarks,
+    Snapshot,
+    Tracking,
+    Trajectory,
+    frozen,
+)
+from backend.pipeline.tracking import match_by_projection, refine_pose, relocalize
+
+
+
+class StereoSource(Protocol):
+    """The reader interface the engine needs (EuRoC folders and synthetic sequences)."""
+
+    timestamps_ns: np.ndarray
+    T_world_rect0: np.ndarray
+
+    @property
+    def camera(self) -> PinholeCamera: ...
+
+    @property
+    def ground_truth_valid(self) -> np.ndarray: ...
+
+    def __len__(self) -> int: ...
+
+    def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class StereoSettings:
+    """Settings of the stereo pipeline (all thresholds of DESIGN §5).
+
+    Keyframes: the paper's rule, at least `min_keyframe_gap` frames since the last keyframe,
+    more than `min_tracked_points` tracked points and at least `min_new_fraction` of the
+    keypoints new; or the fallback, after at least `min_fallback_gap` frames, fewer tracked
+    points than `fallback_tracked_ratio` times the last keyframe's map points.
+    Tracking: projection search radius `search_radius_px` (then `refine_radius_px` around the
+    refined pose), ORB Hamming distance `<= max_hamming` and ratio `match_ratio`; a pose
+    needs `min_tracking_inliers` inliers. Landmarks: stereo depth in [`min_depth_m`,
+    `max_depth_m`]; segments at least `min_line_length_m` long; a landmark must be seen by
+    `min_keyframe_observations` keyframes within `cull_after_keyframes` keyframes of its
+    creation. Window: `window` keyframes optimized, observations from `fixed_horizon` older
+    keyframes enter with fixed poses; `cauchy` is the kernel scale (whitened units) and
+    `outlier_px` the error above which an observation is dropped after the solve. A plane
+    is optimized in a window only with `min_plane_support` of its features there.
+    `skip_unused_stages`: as the paper's Table III, P variants detect no lines and -wo
+    variants segment no planes (off in the debugger, so that every layer and the -wo | -r |
+    -w comparison have data). `image_scale`: size of the keyframe image in snapshots
+    (None: no image). `hessian`: put the window's Hessian structure in snapshots (the
+    debugger shows it; headless runs skip it)."""
+
+    variant: str = "PL-w"
+    window: int = 10
+    fixed_horizon: int = 10
+    min_keyframe_gap: int = 20
+    min_tracked_points: int = 40
+    min_new_fraction: float = 0.1
+    min_fallback_gap: int = 2
+    fallback_tracked_ratio: float = 0.6
+    search_radius_px: float = 15.0
+    refine_radius_px: float = 4.0
+    max_hamming: int = 60
+    match_ratio: float = 0.9
+    min_tracking_inliers: int = 20
+    min_depth_m: float = 0.2
+    max_depth_m: float = 20.0
+    min_line_length_m: float = 0.1
+    line_search_px: float = 20.0
+    min_keyframe_observations: int = 2
+    cull_after_keyframes: int = 3
+    pixel_sigma: float = 1.0
+    cauchy: float = 2.0
+    outlier_px: float = 4.0
+    min_plane_support: int = 10
+    max_iterations: int = 10
+    method: str = "lm"
+    seed: int = 0
+    skip_unused_stages: bool = False
+    image_scale: float | None = 0.5
+    hessian: bool = True
+    points: PointSettings = PointSettings()
+    lines: LineSettings = LineSettings()
+    coplanar: coplanar.CoplanarSettings = coplanar.CoplanarSettings()
+
+    def __post_init__(self) -> None:
+        parse_variant(self.variant)
+        if self.window < 2:
+            raise ValueError("window must be at least 2 keyframes")
+
+
+@dataclasses.dataclass
+class _KeyframeObs:
+    """What one keyframe observed: landmark ids, left pixels and right columns (NaN: no
+    stereo match) of points; left segments (start, end) and right segments (NaN: none)."""
+
+    point_id: np.ndarray
+    point_uv: np.ndarray
+    point_ur: np.ndarray
+    line_id: np.ndarray
+    line_uv: np.ndarray
+    line_ruv: np.ndarray
+
+
+@dataclasses.dataclass
+class _Window:
+    keyframe: int
+    data: ProblemData
+    kf: np.ndarray
+    points: np.ndarray
+    lines: np.ndarray
+    planes: np.ndarray
+
+
+class _Store:
+    """Landmark attributes as growable columns (RowBuffers), indexed by landmark id."""
+
+    def __init__(self, columns: dict[str, tuple[tuple[int, ...], type]]) -> None:
+        self._cols = {name: RowBuffer(shape, dtype=dtype) for name, (shape, dtype) in columns.items()}
+
+    def __len__(self) -> int:
+        return len(next(iter(self._cols.values())))
+
+    def __getattr__(self, name: str) -> RowBuffer:
+        try:
+            return self.__dict__["_cols"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def add(self, **values: np.ndarray) -> np.ndarray:
+        """Append rows (one per entry of each column's values); returns their ids."""
+        count = len(next(iter(values.values())))
+        start = len(self)
+        for name, col in self._cols.items():
+            for row in values[name]:
+                col.append(row)
+        return np.arange(start, start + count)
+
+
+def _point_store() -> _Store:
+    return _Store({
+        "p_world": ((3,), float), "ok": ((), bool), "anchor": ((), np.int64), "anchor_uv": ((2,), float), "anchor_ur": ((), float),
+        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64),
+    })
+
+
+def _line_store() -> _Store:
+    return _Store({
+        "m": ((3,), float), "v": ((3,), float), "ok": ((), bool), "anchor": ((), np.int64), "anchor_uv": ((4,), float), "anchor_ruv": ((4,), float),
+        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64),
+    })
+
+
+class StereoEngine:
+    """The stereo pipeline (implements :class:`~backend.pipeline.engine.Engine`)."""
+
+    def __init__(self, source: StereoSource, *, settings: StereoSettings = StereoSettings(), name: str = "stereo sequence", segmenter: PlaneSegmenter | None = None, on_frame: Callable[[int], None] | None = None) -> None:
+        from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
+
+        self.data_source = source
+        self.settings = settings
+        self._name = name
+        self._variant = settings.variant
+        self.segmenter = segmenter if segmenter is not None else GeometricPlaneSegmenter()
+        self.camera = source.camera
+        self.on_frame = on_frame
+        self.reset()
+
+    # ------------------------------------------------------------------ Engine interface
+
+    @property
+    def source(self) -> str:
+        return self._name
+
+    @property
+    def variant(self) -> str:
+        return self._variant
+
+    @property
+    def keyframes(self) -> int:
+        return len(self._t_est)
+
+    @property
+    def frames(self) -> int:
+        """Frames read so far."""
+        return self._next_frame
+
+    def set_variant(self, name: str) -> None:
+        parse_variant(name)
+        self._variant = name
+
+    def reset(self) -> None:
+        self._next_frame = 0
+        self._R_est = RowBuffer((3, 3))
+        self._t_est = RowBuffer((3,))
+        self._R_gt = RowBuffer((3, 3))
+        self._t_gt = RowBuffer((3,))
+        self._stamp = RowBuffer((), dtype=np.int64)
+        self._kf_frame = RowBuffer((), dtype=np.int64)
+        self._obs: dict[int, _KeyframeObs] = {}
+        self._points = _point_store()
+        self._lines = _line_store()
+        self._planes = coplanar.PlaneSet()
+        self._segment_start = 0  # first keyframe of the current map segment
+        self._local_points = np.zeros(0, np.int64)
+        self._local_lines = np.zeros(0, np.int64)
+        self._frame_poses: list[tuple[int, np.ndarray, np.ndarray]] = []  # (frame, R, t) of the last two frames
+        self._last_kf_tracked = 0
+        self._window: _Window | None = None
+        self._last: Snapshot | None = None
+        self._messages: list[str] = []
+
+    def step(self) -> Snapshot:
+        s = self.settings
+        t_start = time.perf_counter()
+        timing = {"point_dm": 0.0, "tracking": 0.0}
+        frames = lost = reinitializations = 0
+        messages = self._messages = []
+        n = len(self.data_source)
+        while True:
+            if self._next_frame >= n:
+                raise EndOfSequence(f"{self._name}: all {n} frames processed")
+            i = self._next_frame
+            self._next_frame += 1
+            t0 = time.perf_counter()
+            left, right = self.data_source.rectified_pair(i)
+            timing["load"] = timing.get("load", 0.0) + 1e3 * (time.perf_counter() - t0)
+            frames += 1
+            if self.on_frame is not None:
+                self.on_frame(i)
+            t0 = time.perf_counter()
+            kp = detect_points(left, settings=s.points)
+            timing["point_dm"] += 1e3 * (time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            if self.keyframes == 0:
+                R, t = self._initial_pose(i)
+                tracked = _Tracked(R, t, np.full(0, -1, np.int64), 0, True)
+                reason = "first frame"
+            else:
+                tracked = self._track(i, kp)
+                reason = self._keyframe_reason(i, kp, tracked)
+            timing["tracking"] += 1e3 * (time.perf_counter() - t0)
+            self._remember_frame(i, tracked.R, tracked.t)
+            if not tracked.ok:
+                lost += 1
+                if len(kp.uv) >= 3 * s.min_tracking_inliers:
+                    # Features but no pose: a new map segment from this frame's stereo.
+                    reinitializations += 1
+                    self._segment_start = self.keyframes
+                    self._local_points = np.zeros(0, np.int64)
+                    self._local_lines = np.zeros(0, np.int64)
+                    tracked = _Tracked(tracked.R, tracked.t, np.zeros(0, np.int64), 0, True)
+                    messages.append(f"tracking lost at frame {i}: map re-initialized at the predicted pose")
+                    reason = "re-initialization"
+                else:
+                    continue
+            if reason:
+                break
+        return self._keyframe(i, left, right, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, message="; ".join(messages))
+
+    def reoptimize(self) -> Snapshot:
+        if self._last is None:
+            raise RuntimeError("nothing to re-optimize before the first step")
+        last = self._last
+        timing: dict[str, float] = {}
+        t0 = time.perf_counter()
+        report, hessian = self._optimize(last.keyframe, timing)
+        timing["total"] = 1e3 * (time.perf_counter() - t0)
+        self._last = self._snapshot(last.keyframe, last.detection, self._det_state, report, hessian, image=last.image, tracking=last.tracking, message=last.message)
+        return self._last
+
+    def compare_hessians(self, variants: tuple[str, ...]) -> dict[str, HessianStructure]:
+        if self._window is None:
+            return {}
+        return {v: hessian_structure(build_problem(self._window.data, v, robust_px=self.settings.cauchy)) for v in variants}
+
+    # ------------------------------------------------------------------ tracking
+
+    def _initial_pose(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The first keyframe at its ground-truth pose where known (the gauge), else the origin."""
+        if bool(self.data_source.ground_truth_valid[i]):
+            T = self.data_source.T_world_rect0[i]
+            return T[:3, :3].copy(), T[:3, 3].copy()
+        return np.eye(3), np.zeros(3)
+
+    def _remember_frame(self, i: int, R: np.ndarray, t: np.ndarray) -> None:
+        self._frame_poses = (self._frame_poses + [(i, R, t)])[-2:]
+
+    def _predict(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Constant-velocity prediction from the last two frames' poses (per frame)."""
+        (j1, R1, t1) = self._frame_poses[-1]
+        if len(self._frame_poses) < 2:
+            return R1, t1
+        (j0, R0, t0) = self._frame_poses[-2]
+        steps = (i - j1) / max(j1 - j0, 1)
+        # Through the rotation vector: products of rotations extrapolated this way would
+        # amplify rounding errors frame after frame (no longer rotations after a few hundred).
+        R_rel = so3.exp(steps * so3.log(R0.T @ R1))
+        t_rel = steps * (R0.T @ (t1 - t0))
+        return so3.project_to_so3(R1 @ R_rel), t1 + R1 @ t_rel
+
+    def _track(self, i: int, kp: Keypoints) -> "_Tracked":
+        """Pose of frame i against the local map (module docstring)."""
+        s = self.settings
+        cam = self.camera
+        R, t = self._predict(i)
+        ids = self._local_points
+        if len(ids) == 0 or len(kp.uv) == 0:
+            return _Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
+        P, D = self._points.p_world[ids], self._points.desc[ids]
+        result = None
+        for radius in (s.search_radius_px, 3.0 * s.search_radius_px):
+            match = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=radius, max_hamming=s.max_hamming, ratio=s.match_ratio)
+            result = self._refine(R, t, P, D, kp, match)
+            if result.ok:
+                return result
+        reloc = relocalize(cam, P, D, kp.uv, kp.descriptors, max_hamming=s.max_hamming, ratio=s.match_ratio, min_inliers=s.min_tracking_inliers, seed=s.seed + i)
+        if reloc is not None:
+            result = self._refine(reloc[0], reloc[1], P, D, kp, reloc[2])
+            if result.ok:
+                self._messages.append(f"frame {i}: relocalized by PnP against the local map")
+                return result
+        return _Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
+
+    def _refine(self, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, match: np.ndarray) -> "_Tracked":
+        """Refine from `match`; where that leaves fewer than twice the inliers needed, search
+        again around the refined pose (`refine_radius_px`) and refine once more."""
+        s = self.settings
+        cam = self.camera
+        for radius in (None, s.refine_radius_px):
+            if radius is not None:
+                if np.count_nonzero(match >= 0) >= 2 * s.min_tracking_inliers:
+                    break
+                match = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=radius, max_hamming=s.max_hamming, ratio=s.match_ratio)
+            m = np.flatnonzero(match >= 0)
+            if len(m) < s.min_tracking_inliers:
+                return _Tracked(R, t, match, 0, False)
+            ref = refine_pose(cam, R, t, P[m], kp.uv[match[m]], sigma_px=s.pixel_sigma, cauchy=s.cauchy)
+            R, t = ref.R_world_camera, ref.t_world_camera
+            err = _pixel_errors(cam, R, t, P[m], kp.uv[match[m]])
+            match = match.copy()
+            match[m[~(err < s.outlier_px)]] = -1
+        inliers = int(np.count_nonzero(match >= 0))
+        return _Tracked(R, t, match, inliers, inliers >= s.min_tracking_inliers)
+
+    def _keyframe_reason(self, i: int, kp: Keypoints, tracked: "_Tracked") -> str:
+        """Why frame i becomes a keyframe ("" if it does not)."""
+        s = self.settings
+        if not tracked.ok:
+            return ""
+        gap = i - int(self._kf_frame[-1])
+        new_fraction = 1.0 - tracked.inliers / max(len(kp.uv), 1)
+        if gap >= s.min_keyframe_gap and tracked.inliers > s.min_tracked_points and new_fraction >= s.min_new_fraction:
+            return "rule"
+        if gap >= s.min_fallback_gap and tracked.inliers < s.fallback_tracked_ratio * self._last_kf_tracked:
+            return "fallback"
+        return ""
+
+    # ------------------------------------------------------------------ keyframes
+
+    def _keyframe(self, i: int, left: np.ndarray, right: np.ndarray, kp: Keypoints, tracked: "_Tracked", timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, message: str) -> Snapshot:
+        s = self.settings
+        cam = self.camera
+        with_lines, mode = parse_variant(self._variant)
+        use_lines = with_lines or not s.skip_unused_stages
+        use_planes = mode != "wo" or not s.skip_unused_stages
+        k = self.keyframes
+        rng = np.random.default_rng([s.seed, k, 0x57E])
+        frames_per = max(frames, 1)
+        for stage in ("point_dm", "tracking", "load"):
+            timing[stage] = timing.get(stage, 0.0) / frames_per  # means per frame
+
+        # 1. Stereo points (the left ORB is there already), segments and their map matches.
+        t0 = time.perf_counter()
+        stereo = stereo_points(left, right, camera=cam, settings=s.points, left_keypoints=kp)
+        timing["point_dm"] += 1e3 * (time.perf_counter() - t0) / frames_per
+        local_p = self._local_points
+        p_match = tracked.match if len(tracked.match) == len(local_p) else np.full(len(local_p), -1, np.int64)
+        segs: StereoSegments | None = None
+        l_match = np.zeros(0, np.int64)
+        local_l = self._local_lines
+        timing["line_dm"] = 0.0
+        if use_lines:
+            t0 = time.perf_counter()
+            segs = stereo_segments(left, right, camera=cam, settings=s.lines)
+            l_match = self._match_lines(tracked.R, tracked.t, local_l, segs.left) if len(local_l) else np.full(0, -1, np.int64)
+            timing["line_dm"] = 1e3 * (time.perf_counter() - t0)
+
+        # 2. Pose refinement against points and lines.
+        t0 = time.perf_counter()
+        R, t = tracked.R, tracked.t
+        mp = np.flatnonzero(p_match >= 0)
+        ml = np.flatnonzero(l_match >= 0)
+        if len(mp) >= s.min_tracking_inliers:
+            lines_world = (self._lines.m[local_l[ml]], self._lines.v[local_l[ml]]) if len(ml) else None
+            seg_uv = np.concatenate([segs.left.start[l_match[ml]], segs.left.end[l_match[ml]]], axis=1) if len(ml) else None
+            ref = refine_pose(cam, R, t, self._points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]], lines_world=lines_world, segments_uv=seg_uv, sigma_px=s.pixel_sigma, cauchy=s.cauchy)
+            R, t = ref.R_world_camera, ref.t_world_camera
+            err = _pixel_errors(cam, R, t, self._points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]])
+            p_match = p_match.copy()
+            p_match[mp[~(err < s.outlier_px)]] = -1
+        timing["tracking"] += 1e3 * (time.perf_counter() - t0) / frames_per
+
+        # 3. The keyframe, its observations and new landmarks.
+        t0 = time.perf_counter()
+        status = np.full(len(kp.uv), POINT_UNUSED, np.uint8)
+        status[tracked.match[tracked.match >= 0]] = POINT_OUTLIER if len(tracked.match) == len(local_p) else POINT_UNUSED
+        self._add_keyframe(i, R, t)
+        obs, new_points, new_lines = self._observe(k, R, t, kp, stereo, local_p, p_match, segs, local_l, l_match)
+        status[p_match[p_match >= 0]] = POINT_TRACKED
+        status[self._new_point_kp] = POINT_NEW
+        self._last_kf_tracked = len(obs.point_id)
+        timing["mapping"] = 1e3 * (time.perf_counter() - t0)
+
+        # 4. Plane segmentation and co-planar detection.
+        masks: PlaneMasks | None = None
+        detection = Detection((), (), (), (), ())
+        p_ids = obs.point_id[self._points.ok[obs.point_id]]
+        l_ids = obs.line_id[self._lines.ok[obs.line_id]]
+        self._det_state = (p_ids, np.zeros(len(p_ids), np.uint8), l_ids, np.zeros(len(l_ids), np.uint8))
+        timing["plane_seg"] = timing["plane_fit"] = 0.0
+        if use_planes:
+            t0 = time.perf_counter()
+            masks = self.segmenter.segment(left, right, cam)
+            timing["plane_seg"] = 1e3 * (time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            detection = self._detect_planes(obs, masks, new_points, new_lines, rng)
+            timing["plane_fit"] = 1e3 * (time.perf_counter() - t0)
+
+        # 5. Window bundle adjustment and 6. culling.
+        report, hessian = self._optimize(k, timing)
+        t0 = time.perf_counter()
+        self._cull(k)
+        self._update_local_map(k)
+        timing["culling"] = 1e3 * (time.perf_counter() - t0)
+        if self._frame_poses:  # the motion model continues from the optimized keyframe pose
+            self._frame_poses[-1] = (i, self._R_est[k].copy(), self._t_est[k].copy())
+
+        image = None
+        if s.image_scale is not None:
+            t0 = time.perf_counter()
+            image = self._draw(left, kp, status, segs, obs, masks, detection)
+            timing["image"] = 1e3 * (time.perf_counter() - t0)
+        total = 1e3 * (time.perf_counter() - t_start) - timing["load"] * frames_per  # reading or rendering images is not the pipeline's
+        timing["total"] = total
+        timing["total_per_frame"] = total / frames_per
+        tracking = Tracking(frames=frames, lost_frames=lost, reinitializations=reinitializations, tracked_points=int(np.count_nonzero(p_match >= 0)), tracked_lines=int(np.count_nonzero(l_match >= 0)))
+        self._last = self._snapshot(k, detection, self._det_state, report, hessian, image=image, tracking=tracking, message=message)
+        return self._last
+
+    def _add_keyframe(self, i: int, R: np.ndarray, t: np.ndarray) -> None:
+        self._R_est.append(R)
+        self._t_est.append(t)
+        if bool(self.data_source.ground_truth_valid[i]):
+            T = self.data_source.T_world_rect0[i]
+            self._R_gt.append(T[:3, :3])
+            self._t_gt.append(T[:3, 3])
+        else:
+            self._R_gt.append(np.full((3, 3), np.nan))
+            self._t_gt.append(np.full(3, np.nan))
+        self._stamp.append(int(self.data_source.timestamps_ns[i]))
+        self._kf_frame.append(i)
+
+    def _observe(self, k: int, R: np.ndarray, t: np.ndarray, kp: Keypoints, stereo, local_p: np.ndarray, p_match: np.ndarray, segs: StereoSegments | None, local_l: np.ndarray, l_match: np.ndarray) -> tuple[_KeyframeObs, np.ndarray, np.ndarray]:  # noqa: ANN001
+        """Record keyframe k's observations of map landmarks and create new ones from stereo."""
+        s = self.settings
+        P, Lm = self._points, self._lines
+        mp = np.flatnonzero(p_match >= 0)
+        j = p_match[mp]
+        tracked_ids = local_p[mp]
+        P.desc[tracked_ids] = kp.descriptors[j]  # the newest view describes the point best
+        P.n_kf[tracked_ids] = P.n_kf[tracked_ids] + 1
+        claimed = np.zeros(len(kp.uv), bool)
+        claimed[j] = True
+        z = stereo.p_cam[:, 2]
+        fresh = np.flatnonzero(~claimed & stereo.matched & (z > s.min_depth_m) & (z < s.max_depth_m))
+        self._new_point_kp = fresh
+        new_points = P.add(
+            p_world=stereo.p_cam[fresh] @ R.T + t, ok=np.ones(len(fresh), bool), anchor=np.full(len(fresh), k), anchor_uv=stereo.uv_left[fresh],
+            anchor_ur=stereo.u_right[fresh], plane=np.full(len(fresh), -1), desc=kp.descriptors[fresh], n_kf=np.ones(len(fresh), np.int64),
+        )
+        point_id = np.concatenate([tracked_ids, new_points])
+        point_kp = np.concatenate([j, fresh])
+        line_id = np.zeros(0, np.int64)
+        line_uv = np.zeros((0, 4))
+        line_ruv = np.zeros((0, 4))
+        new_lines = np.zeros(0, np.int64)
+        if segs is not None:
+            left, right = segs.left, segs.right
+            uv = np.concatenate([left.start, left.end], axis=1)
+            ruv = np.full((len(left), 4), np.nan)
+            has_r = segs.right_index >= 0
+            ruv[has_r] = np.concatenate([right.start[segs.right_index[has_r]], right.end[segs.right_index[has_r]]], axis=1)
+            ml = np.flatnonzero(l_match >= 0)
+            jl = l_match[ml]
+            tracked_l = local_l[ml]
+            Lm.desc[tracked_l] = left.descriptors[jl]
+            Lm.n_kf[tracked_l] = Lm.n_kf[tracked_l] + 1
+            claimed_l = np.zeros(len(left), bool)
+            claimed_l[jl] = True
+            ps, pe = segs.p_start_cam, segs.p_end_cam
+            length = np.linalg.norm(pe - ps, axis=1)
+            with np.errstate(invalid="ignore"):
+                good = has_r & (np.minimum(ps[:, 2], pe[:, 2]) > s.min_depth_m) & (np.maximum(ps[:, 2], pe[:, 2]) < s.max_depth_m) & (length > s.min_line_length_m)
+            fresh_l = np.flatnonzero(~claimed_l & good)
+            a_w, b_w = ps[fresh_l] @ R.T + t, pe[fresh_l] @ R.T + t
+            m, v = line_geo.from_points(a_w, b_w)
+            norm = np.linalg.norm(v, axis=1, keepdims=True)
+            new_lines = Lm.add(
+                m=m / norm, v=v / norm, ok=np.ones(len(fresh_l), bool), anchor=np.full(len(fresh_l), k), anchor_uv=uv[fresh_l], anchor_ruv=ruv[fresh_l],
+                plane=np.full(len(fresh_l), -1), desc=left.descriptors[fresh_l], n_kf=np.ones(len(fresh_l), np.int64),
+            )
+            line_id = np.concatenate([tracked_l, new_lines])
+            sel = np.concatenate([jl, fresh_l])
+            line_uv, line_ruv = uv[sel], ruv[sel]
+            self._line_seg_index = sel
+        else:
+            self._line_seg_index = np.zeros(0, np.int64)
+        obs = _KeyframeObs(point_id, stereo.uv_left[point_kp], stereo.u_right[point_kp], line_id, line_uv, line_ruv)
+        self._obs[k] = obs
+        return obs, new_points, new_lines
+
+    def _match_lines(self, R: np.ndarray, t: np.ndarray, ids: np.ndarray, segments: Segments) -> np.ndarray:
+        """Map lines `ids` to left segments of the keyframe at pose (R, t): the map line's
+        segment projected into the image must agree in direction (`max_angle_diff_deg`), the
+        detected endpoints lie within `line_search_px` of the projected line and overlap the
+        projected segment; then LBD Hamming distance with ratio test, one-to-one."""
+        s = self.settings
+        out = np.full(len(ids), -1, np.int64)
+        if len(ids) == 0 or len(segments) == 0:
+            return out
+        seg_w = self._segments_world(ids)
+        p_cam = (seg_w - t) @ R
+        front = np.all(p_cam[..., 2] > s.min_depth_m, axis=1)
+        uv = np.full((len(ids), 2, 2), np.nan)
+        uv[front] = self.camera.project(p_cam[front])
+        a, b = uv[:, 0], uv[:, 1]
+        d = b - a
+        length = np.linalg.norm(d, axis=1)
+        ok = front & (length > 5.0)
+        dn = d / np.where(ok, length, 1.0)[:, None]
+        normal = np.stack([-dn[:, 1], dn[:, 0]], axis=1)
+        ds = segments.direction
+        cos = np.abs(dn @ ds.T)
+        dist_s = np.abs(np.einsum("ik,ijk->ij", normal, segments.start[None] - a[:, None]))
+        dist_e = np.abs(np.einsum("ik,ijk->ij", normal, segments.end[None] - a[:, None]))
+        t_mid = np.einsum("ik,ijk->ij", dn, segments.midpoint[None] - a[:, None]) / np.where(ok, length, 1.0)[:, None]
+        with np.errstate(invalid="ignore"):
+            allowed = ok[:, None] & (cos >= np.cos(np.radians(s.lines.max_angle_diff_deg))) & (np.maximum(dist_s, dist_e) < s.line_search_px) & (t_mid > -0.25) & (t_mid < 1.25)
+        rows, cols = np.nonzero(allowed)
+        if len(rows) == 0:
+            return out
+        dist = pair_hamming(self._lines.desc[ids[rows]], segments.descriptors[cols])
+        return best_matches(rows, cols, dist, n_rows=len(ids), max_distance=s.lines.max_hamming, ratio=s.lines.ratio)
+
+    def _segments_world(self, ids: np.ndarray) -> np.ndarray:
+        """World segments (L, 2, 3): the points of each line nearest its anchor endpoint rays."""
+        if len(ids) == 0:
+            return np.zeros((0, 2, 3))
+        a = self._lines.anchor[ids]
+        R_a, t_a = self._R_est[a], self._t_est[a]
+        m, v = self._lines.m[ids], self._lines.v[ids]
+        ends = []
+        for j in (0, 2):
+            x = self.camera.normalize(self._lines.anchor_uv[ids][:, j : j + 2])
+            w = np.einsum("mij,mj->mi", R_a, x)
+            P, _, _ = factors.line_point_nearest_ray(m, v, t_a, w)
+            ends.append(P)
+        return np.stack(ends, axis=1)
+
+    def _detect_planes(self, obs: _KeyframeObs, masks: PlaneMasks, new_points: np.ndarray, new_lines: np.ndarray, rng: np.random.Generator) -> Detection:
+        """Co-planar detection on the keyframe (paper §III-A), features labelled by the
+        instance masks: a point by its pixel, a segment when both endpoints (pulled 3 px
+        inward) fall in the same instance."""
+        labels = masks.labels
+        P, Lm = self._points, self._lines
+        p_sel = P.ok[obs.point_id]
+        l_sel = Lm.ok[obs.line_id]
+        p_ids, l_ids = obs.point_id[p_sel], obs.line_id[l_sel]
+        p_lab = _labels_at(labels, obs.point_uv[p_sel])
+        seg = obs.line_uv[l_sel]
+        direction = seg[:, 2:] - seg[:, :2]
+        direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-9)
+        lab_s = _labels_at(labels, seg[:, :2] + 3.0 * direction)
+        lab_e = _labels_at(labels, seg[:, 2:] - 3.0 * direction)
+        l_lab = np.where(lab_s == lab_e, lab_s, -1)
+        det = coplanar.detect_keyframe_planes(
+            point_ids=p_ids, point_label=p_lab, p_world=P.p_world[p_ids], line_ids=l_ids, line_label=l_lab, segments_world=self._segments_world(l_ids),
+            point_plane=P.plane[:], line_plane=Lm.plane[:], planes=self._planes, rng=rng, settings=self.settings.coplanar,
+        )
+        # New landmarks the detection did not place: test them against the existing planes.
+        pts = new_points[P.plane[new_points] < 0]
+        lns = new_lines[Lm.plane[new_lines] < 0]
+        if len(self._planes) and (len(pts) or len(lns)):
+            N, D = self._planes.arrays()
+            q_p, q_l = coplanar.associate_to_planes(P.p_world[pts], self._segments_world(lns), N, D, [self._hull(q) for q in range(len(N))], threshold_m=self.settings.coplanar.threshold_m)
+            P.plane[pts[q_p >= 0]] = q_p[q_p >= 0]
+            Lm.plane[lns[q_l >= 0]] = q_l[q_l >= 0]
+        self._det_state = (p_ids, det.point_state, l_ids, det.line_state)
+        self._instance_plane = np.full(masks.count, -1, np.int64)
+        for q, plane, accepted in zip(det.instance, det.plane, det.accepted):
+            if accepted and 0 <= q < masks.count:
+                self._instance_plane[q] = plane
+        return Detection(det.instance, det.candidates, det.inliers, det.accepted, det.plane)
+
+    def _hull(self, q: int) -> np.ndarray:
+        P, Lm = self._points, self._lines
+        pts = [P.p_world[(P.plane[:] == q) & P.ok[:]]]
+        lines = np.flatnonzero((Lm.plane[:] == q) & Lm.ok[:])
+        if len(lines):
+            pts.append(self._segments_world(lines).reshape(-1, 3))
+        return coplanar.plane_hull(self._planes.n[q], self._planes.d[q], np.concatenate(pts))
+
+    # ------------------------------------------------------------------ window bundle adjustment
+
+    def _window_range(self, k: int) -> tuple[int, int]:
+        s = self.settings
+        w0 = max(self._segment_start, k - s.window + 1)
+        return w0, max(self._segment_start, w0 - s.fixed_horizon)
+
+    def _window_data(self, k: int) -> _Window:
+        s = self.settings
+        cam = self.camera
+        P, Lm = self._points, self._lines
+        w0, oldest = self._window_range(k)
+        win = [self._obs[j] for j in range(w0, k + 1)]
+        pts = np.unique(np.concatenate([o.point_id for o in win]))
+        pts = pts[P.ok[pts]]
+        lns = np.unique(np.concatenate([o.line_id for o in win]))
+        lns = lns[Lm.ok[lns]]
+        p_local = np.full(len(P), -1)
+        p_local[pts] = np.arange(len(pts))
+        l_local = np.full(len(Lm), -1)
+        l_local[lns] = np.arange(len(lns))
+
+        # Observations from [oldest, k]; anchors older than that enter from the stored anchor view.
+        rows_p, rows_l = [], []
+        for j in range(oldest, k + 1):
+            o = self._obs[j]
+            sp = p_local[o.point_id] >= 0
+            rows_p.append((np.full(int(sp.sum()), j), o.point_id[sp], o.point_uv[sp], o.point_ur[sp]))
+            sl = l_local[o.line_id] >= 0
+            rows_l.append((np.full(int(sl.sum()), j), o.line_id[sl], o.line_uv[sl], o.line_ruv[sl]))
+        old_p = pts[P.anchor[pts] < oldest]
+        rows_p.append((P.anchor[old_p], old_p, P.anchor_uv[old_p], P.anchor_ur[old_p]))
+        old_l = lns[Lm.anchor[lns] < oldest]
+        rows_l.append((Lm.anchor[old_l], old_l, Lm.anchor_uv[old_l], Lm.anchor_ruv[old_l]))
+        kf_p, id_p, uv_p, ur_p = (np.concatenate(c) for c in zip(*rows_p))
+        kf_l, id_l, uv_l, ruv_l = (np.concatenate(c) for c in zip(*rows_l))
+        uv_p, uv_l, ruv_l = uv_p.reshape(-1, 2), uv_l.reshape(-1, 4), ruv_l.reshape(-1, 4)
+
+        kfs = np.unique(np.concatenate([kf_p, kf_l, np.arange(w0, k + 1)]))
+        local = np.searchsorted
+        fixed = kfs < w0
+        if not np.any(fixed):
+            fixed[0] = True  # the gauge: the segment's first keyframe
+        # Stereo: each right-image observation is a second camera `baseline` to the right.
+        offset = cam.offset_right
+        has_r = np.isfinite(ur_p)
+        p_obs = Observations(
+            np.concatenate([p_local[id_p], p_local[id_p[has_r]]]),
+            local(kfs, np.concatenate([kf_p, kf_p[has_r]])),
+            np.concatenate([uv_p, np.stack([ur_p[has_r], uv_p[has_r, 1]], axis=1)]),
+            np.concatenate([np.zeros((len(id_p), 3)), np.tile(offset, (int(has_r.sum()), 1))]),
+        )
+        has_rl = np.all(np.isfinite(ruv_l), axis=1)
+        l_obs = Observations(
+            np.concatenate([l_local[id_l], l_local[id_l[has_rl]]]),
+            local(kfs, np.concatenate([kf_l, kf_l[has_rl]])),
+            np.concatenate([uv_l, ruv_l[has_rl]]),
+            np.concatenate([np.zeros((len(id_l), 3)), np.tile(offset, (int(has_rl.sum()), 1))]),
+        )
+
+        owner = np.concatenate([P.plane[pts], Lm.plane[lns]])
+        support = np.bincount(owner[owner >= 0], minlength=len(self._planes))
+        planes = np.flatnonzero(support >= s.min_plane_support)
+        q_local = np.full(len(self._planes) + 1, -1)
+        q_local[planes] = np.arange(len(planes))
+
+        R, t = self._R_est[kfs].copy(), self._t_est[kfs].copy()
+        a_p = local(kfs, P.anchor[pts])
+        p_a = np.einsum("nji,nj->ni", R[a_p], P.p_world[pts] - t[a_p])
+        rho = 1.0 / np.clip(p_a[:, 2], s.min_depth_m, None)
+        U, phi = line_geo.to_orthonormal(Lm.m[lns], Lm.v[lns]) if len(lns) else (np.zeros((0, 3, 3)), np.zeros((0, 2)))
+        N, D = self._planes.arrays()
+        data = ProblemData(
+            camera=cam, poses=Poses(R, t),
+            point_anchor=a_p, point_anchor_uv=P.anchor_uv[pts], point_rho=rho, point_plane=q_local[P.plane[pts]], point_obs=p_obs,
+            line_anchor=local(kfs, Lm.anchor[lns]), line_anchor_uv=Lm.anchor_uv[lns], line_U=U, line_phi=phi, line_plane=q_local[Lm.plane[lns]], line_obs=l_obs,
+            plane_n=N[planes], plane_d=D[planes], odometry=None, prior=None, sigma_px=s.pixel_sigma, fixed_poses=fixed,
+        )
+        return _Window(k, data, kfs, pts, lns, planes)
+
+    def _optimize(self, k: int, timing: dict[str, float]) -> tuple[OptimizationReport, HessianStructure | None]:
+        s = self.settings
+        t0 = time.perf_counter()
+        win = self._window_data(k)
+        self._window = win
+        problem = build_problem(win.data, self._variant, robust_px=s.cauchy)
+        timing["setup"] = 1e3 * (time.perf_counter() - t0)
+        free = ~win.data.fixed_poses
+        if not np.any(free) or problem.layout.n_params == 0:  # a segment's first keyframe: nothing to solve
+            timing["optimization"] = timing["linearize"] = timing["solve"] = 0.0
+            report = OptimizationReport(self._variant, s.method, 0, 0.0, 0.0, True, problem.layout.n_items, problem.layout.n_params, int(free.sum()), int((~free).sum()), timing)
+            return report, None
+        state, rep = optimize(problem, method=s.method, max_iterations=s.max_iterations)
+        timing["optimization"] = rep.time_ms
+        timing["linearize"] = rep.linearize_ms
+        timing["solve"] = rep.solve_ms
+        t0 = time.perf_counter()
+        kf_free = win.kf[free]
+        self._R_est[kf_free] = state.poses.R_world_camera[free]
+        self._t_est[kf_free] = state.poses.t_world_camera[free]
+        P, Lm = self._points, self._lines
+        if len(win.points):
+            p = problem.point_positions(state)
+            good = np.all(np.isfinite(p), axis=1)
+            P.p_world[win.points[good]] = p[good]
+        with_lines, _ = parse_variant(self._variant)
+        if len(win.lines) and with_lines:
+            m, v = problem.line_pluecker(state)
+            norm = np.linalg.norm(v, axis=1, keepdims=True)
+            good = np.all(np.isfinite(m), axis=1) & (norm[:, 0] > 1e-12)
+            Lm.m[win.lines[good]], Lm.v[win.lines[good]] = m[good] / norm[good], v[good] / norm[good]
+        used = problem.layout.plane_col >= 0
+        for j, q in enumerate(win.planes):
+            if used[j]:
+                self._planes.n[q], self._planes.d[q] = state.plane_n[j].copy(), float(state.plane_d[j])
+        self._refit_unused_planes({int(q) for q, u in zip(win.planes, used) if u})
+        timing["update"] = 1e3 * (time.perf_counter() - t0)
+        hessian = None
+        if s.hessian:
+            t0 = time.perf_counter()
+            hessian = hessian_structure(problem, state)
+            timing["hessian"] = 1e3 * (time.perf_counter() - t0)
+        report = OptimizationReport(
+            variant=self._variant, method=s.method, iterations=rep.iterations, initial_cost=rep.initial_cost, final_cost=rep.final_cost,
+            converged=rep.converged, items=rep.items, params=rep.params, window=int(free.sum()), fixed_poses=int((~free).sum()), timing_ms=timing,
+        )
+        return report, hessian
+
+    def _refit_unused_planes(self, optimized: set[int]) -> None:
+        """Planes the variant does not optimize follow their landmarks (least squares)."""
+        P, Lm = self._points, self._lines
+        for q in range(len(self._planes)):
+            if q in optimized:
+                continue
+            support = [P.p_world[(P.plane[:] == q) & P.ok[:]]]
+            lines = np.flatnonzero((Lm.plane[:] == q) & Lm.ok[:])
+            if len(lines):
+                support.append(self._segments_world(lines).reshape(-1, 3))
+            pts = np.concatenate(support)
+            pts = pts[np.all(np.isfinite(pts), axis=1)]
+            if len(pts) < 3:
+                continue
+            try:
+                n, d = plane_geo.fit_plane(pts)
+            except ValueError:
+                continue
+            if n @ self._planes.n[q] < 0:
+                n, d = -n, -d
+            self._planes.n[q], self._planes.d[q] = n, d
+
+    def _cull(self, k: int) -> None:
+        """Drop window observations whose error stays above `outlier_px` after the solve;
+        remove landmarks whose anchor view is such an outlier, that lie behind their anchor
+        or beyond `max_depth_m`, or that too few keyframes re-observed."""
+        s = self.settings
+        cam = self.camera
+        P, Lm = self._points, self._lines
+        w0, _ = self._window_range(k)
+        bad_p = np.zeros(len(P), bool)
+        bad_l = np.zeros(len(Lm), bool)
+        for j in range(w0, k + 1):
+            o = self._obs[j]
+            R, t = self._R_est[j], self._t_est[j]
+            err = _pixel_errors(cam, R, t, P.p_world[o.point_id], o.point_uv)
+            keep_p = (err < s.outlier_px) & P.ok[o.point_id]
+            anchor_p = P.anchor[o.point_id] == j
+            bad_p[o.point_id[anchor_p & ~(err < s.outlier_px)]] = True
+            err_l = _line_errors(cam, R, t, Lm.m[o.line_id], Lm.v[o.line_id], o.line_uv)
+            keep_l = (err_l < s.outlier_px) & Lm.ok[o.line_id]
+            anchor_l = Lm.anchor[o.line_id] == j
+            bad_l[o.line_id[anchor_l & ~(err_l < s.outlier_px)]] = True
+            dropped_p = o.point_id[~keep_p & ~anchor_p]
+            P.n_kf[dropped_p] = P.n_kf[dropped_p] - 1
+            dropped_l = o.line_id[~keep_l & ~anchor_l]
+            Lm.n_kf[dropped_l] = Lm.n_kf[dropped_l] - 1
+            self._obs[j] = _KeyframeObs(o.point_id[keep_p | anchor_p], o.point_uv[keep_p | anchor_p], o.point_ur[keep_p | anchor_p], o.line_id[keep_l | anchor_l], o.line_uv[keep_l | anchor_l], o.line_ruv[keep_l | anchor_l])
+        # Depth in the anchor and re-observation.
+        ids = np.flatnonzero(P.ok[:])
+        a = P.anchor[ids]
+        z = np.einsum("nji,nj->ni", self._R_est[a], P.p_world[ids] - self._t_est[a])[:, 2]
+        bad_p[ids[~((z > 0.5 * s.min_depth_m) & (z < 2.0 * s.max_depth_m))]] = True
+        stale = (a <= k - s.cull_after_keyframes) & (a >= self._segment_start) & (P.n_kf[ids] < s.min_keyframe_observations)
+        bad_p[ids[stale]] = True
+        ids_l = np.flatnonzero(Lm.ok[:])
+        stale_l = (Lm.anchor[ids_l] <= k - s.cull_after_keyframes) & (Lm.anchor[ids_l] >= self._segment_start) & (Lm.n_kf[ids_l] < s.min_keyframe_observations)
+        bad_l[ids_l[stale_l]] = True
+        P.ok[np.flatnonzero(bad_p)] = False
+        Lm.ok[np.flatnonzero(bad_l)] = False
+
+    def _update_local_map(self, k: int) -> None:
+        """The local map: the landmarks of the current map segment (tracking matches only
+        those that project into the image, so revisited places are re-associated); the
+        window's own landmarks first."""
+        w0, _ = self._window_range(k)
+        win = [self._obs[j] for j in range(w0, k + 1)]
+        pts = np.unique(np.concatenate([o.point_id for o in win]))
+        lns = np.unique(np.concatenate([o.line_id for o in win]))
+        P, Lm = self._points, self._lines
+        older_p = np.flatnonzero(P.ok[:] & (P.anchor[:] >= self._segment_start))
+        older_l = np.flatnonzero(Lm.ok[:] & (Lm.anchor[:] >= self._segment_start))
+        self._local_points = np.concatenate([pts[P.ok[pts]], np.setdiff1d(older_p, pts)])
+        self._local_lines = np.concatenate([lns[Lm.ok[lns]], np.setdiff1d(older_l, lns)])
+
+    # ------------------------------------------------------------------ snapshot
+
+    def _draw(self, left: np.ndarray, kp: Keypoints, status: np.ndarray, segs: StereoSegments | None, obs: _KeyframeObs, masks: PlaneMasks | None, detection: Detection) -> KeyframeImage:
+        if segs is not None and len(self._line_seg_index):
+            seg_uv = obs.line_uv.reshape(-1, 2, 2)
+            seg_plane = np.where(self._lines.ok[obs.line_id], self._lines.plane[obs.line_id], -1)
+        else:
+            seg_uv, seg_plane = np.zeros((0, 2, 2)), np.zeros(0, np.int64)
+        instance_plane = self._instance_plane if masks is not None and len(self._instance_plane) == masks.count else None
+        return draw_keyframe_image(
+            left, points_uv=kp.uv, point_status=status, segments_uv=seg_uv, segment_plane=seg_plane,
+            instance_labels=None if masks is None else masks.labels, instance_plane=instance_plane, scale=float(self.settings.image_scale or 1.0),
+        )
+
+    def _snapshot(self, k: int, detection: Detection, det_state: tuple, report: OptimizationReport, hessian: HessianStructure | None, *, image: KeyframeImage | None, tracking: Tracking | None, message: str) -> Snapshot:
+        w0, _ = self._window_range(k)
+        n = k + 1
+        estimate = Trajectory((
+            (self._stamp.prefix(w0), self._R_est.prefix(w0), self._t_est.prefix(w0)),
+            (frozen(self._stamp[w0:n].copy()), frozen(self._R_est[w0:n].copy()), frozen(self._t_est[w0:n].copy())),
+        ))
+        gt = Trajectory.of(self._stamp.prefix(n), self._R_gt.prefix(n), self._t_gt.prefix(n))
+        P, Lm = self._points, self._lines
+        p_ids = np.flatnonzero(P.ok[:])
+        p_det = np.zeros(len(P), np.uint8)
+        p_det[det_state[0]] = det_state[1]
+        l_ids = np.flatnonzero(Lm.ok[:])
+        l_det = np.zeros(len(Lm), np.uint8)
+        l_det[det_state[2]] = det_state[3]
+        points = PointLandmarks(frozen(p_ids), frozen(P.p_world[p_ids].copy()), frozen(P.plane[p_ids].copy()), frozen(P.anchor[p_ids].copy()), frozen(p_det[p_ids]))
+        lines = LineLandmarks(frozen(l_ids), frozen(self._segments_world(l_ids)), frozen(Lm.plane[l_ids].copy()), frozen(Lm.anchor[l_ids].copy()), frozen(l_det[l_ids]))
+        planes = []
+        for q in range(len(self._planes)):
+            n_p, n_l = int(np.sum((P.plane[:] == q) & P.ok[:])), int(np.sum((Lm.plane[:] == q) & Lm.ok[:]))
+            if n_p + n_l == 0:
+                continue
+            planes.append(PlaneLandmark(
+                id=q, n=frozen(np.array(self._planes.n[q])), d=float(self._planes.d[q]), hull_world=frozen(self._hull(q)), n_points=n_p, n_lines=n_l,
+                last_consensus=self._planes.consensus[q][0], last_candidates=self._planes.consensus[q][1],
+            ))
+        valid = np.isfinite(gt.t_world_camera[:, 0])
+        t_est, t_gt = estimate.t_world_camera[valid], gt.t_world_camera[valid]
+        rmse = 100.0 * translational_rmse(t_est, t_gt) if len(t_gt) else float("nan")
+        ate = 100.0 * ate_rmse(t_est, t_gt, align="se3") if len(t_gt) >= 3 else rmse
+        return Snapshot(
+            keyframe=k, timestamp_ns=int(self._stamp[k]), source=self._name, camera=self.camera, estimate=estimate, ground_truth=gt if valid.any() else None,
+            window=frozen(np.arange(w0, n)), points=points, lines=lines, planes=tuple(planes), detection=detection,
+            report=report, hessian=hessian, metrics=Metrics(rmse_cm=rmse, ate_cm=ate), message=message, image=image, tracking=tracking,
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Tracked:
+    """A frame's pose, the keypoint matched to each local map point (-1: none), inliers."""
+
+    R: np.ndarray
+    t: np.ndarray
+    match: np.ndarray
+    inliers: int
+    ok: bool
+
+
+def _pixel_errors(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, p_world: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Reprojection error norms (M,) in pixels; inf behind the camera."""
+    p_cam = (p_world - t) @ R
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.linalg.norm(camera.project(p_cam) - uv, axis=1)
+    return np.where(p_cam[:, 2] > 1e-6, err, np.inf)
+
+
+def _line_errors(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, m_world: np.ndarray, v_world: np.ndarray, segments_uv: np.ndarray) -> np.ndarray:
+    """Larger endpoint-to-line distance (M,) in pixels of world lines seen as segments (M, 4)."""
+    if len(m_world) == 0:
+        return np.zeros(0)
+    m_c, _ = line_geo.to_camera(m_world, v_world, R, t)
+    x_s, x_e = camera.normalize(segments_uv[:, :2]), camera.normalize(segments_uv[:, 2:])
+    norm = np.linalg.norm(m_c[:, :2], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = camera.fx * np.maximum(np.abs(np.sum(x_s * m_c, axis=1)), np.abs(np.sum(x_e * m_c, axis=1))) / norm
+    return np.where(np.isfinite(err), err, np.inf)
+
+
+def _labels_at(labels: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Instance label (-1: none) at pixels (M, 2), -1 outside the image."""
+    h, w = labels.shape
+    u = np.rint(uv[:, 0]).astype(np.int64)
+    v = np.rint(uv[:, 1]).astype(np.int64)
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    out = np.full(len(uv), -1, np.int64)
+    out[inside] = labels[v[inside], u[inside]]
+    return out
