@@ -21,26 +21,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def load_scene_argument(text: str):  # noqa: ANN201
-    """A built-in scene by name, or a scene file; UsageError otherwise."""
-    from app.cli import UsageError
-    from backend.data.scenes import SCENE_NAMES, SceneFileError, builtin_scene, load_scene
-
-    if text in SCENE_NAMES:
-        return builtin_scene(text)
-    path = pathlib.Path(text)
-    if not path.exists():
-        raise UsageError(f"--scene {text}: neither a built-in scene ({', '.join(SCENE_NAMES)}) nor an existing scene file")
-    try:
-        return load_scene(path)
-    except SceneFileError as e:
-        raise UsageError(str(e)) from None
-
-
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from app.cli import UsageError
+    from app.sources import load_scene_argument
     from backend.data.synthetic import SequenceSettings, render_sequence
 
     scene = load_scene_argument(args.scene)

@@ -13,6 +13,7 @@ import pytest
 import viewer.app
 from app import cli, serve_command
 from backend.pipeline.sim_engine import SimEngine
+from backend.pipeline.stereo_engine import StereoEngine
 
 CONSOLE_SCRIPT = pathlib.Path(sys.executable).parent / "coplanar"
 
@@ -40,10 +41,18 @@ BAD_INPUT = {
     "scene": (["--scene", "nope"], ["--scene", "nope", "mc-a"]),
     "dataset": (["--dataset", "/some/path"], ["/some/path", "no such folder"]),
     "scene-and-dataset": (["--scene", "mc-a", "--dataset", "/some/path"], ["--dataset"]),
-    "mislabel-high": (["--mislabel", "1.5"], ["--mislabel", "1.5"]),
-    "mislabel-negative": (["--mislabel", "-0.1"], ["--mislabel", "-0.1"]),
-    "mislabel-text": (["--mislabel", "lots"], ["--mislabel", "lots"]),
+    "mislabel-high": (["--scene", "mc-a", "--mislabel", "1.5"], ["--mislabel", "1.5"]),
+    "mislabel-negative": (["--scene", "mc-b", "--mislabel", "-0.1"], ["--mislabel", "-0.1"]),
+    "mislabel-text": (["--scene", "mc-a", "--mislabel", "lots"], ["--mislabel", "lots"]),
+    "mislabel-stereo": (["--mislabel", "0.2"], ["--mislabel 0.2", "mc-a"]),
+    "scene-file-missing": (["--scene", "nowhere/scene.json"], ["--scene nowhere/scene.json", "scene file"]),
+    "duration-zero": (["--duration", "0"], ["--duration 0"]),
+    "duration-negative": (["--scene", "corridor", "--duration", "-5"], ["--duration -5"]),
+    "duration-infinite": (["--duration", "inf"], ["--duration inf"]),
+    "duration-mc": (["--scene", "mc-a", "--duration", "10"], ["--duration 10", "mc-a"]),
+    "frames-not-an-option": (["--frames", "10"], ["--frames"]),
     "window": (["--window", "1"], ["--window", "1"]),
+    "window-mc": (["--scene", "mc-a", "--window", "1"], ["--window", "1"]),
     "history": (["--history", "0"], ["--history", "0"]),
     "port-high": (["--port", "70000"], ["--port", "70000"]),
     "port-negative": (["--port", "-1"], ["--port", "-1"]),
@@ -75,12 +84,12 @@ def test_port_is_checked_before_the_scene_is_built(monkeypatch: pytest.MonkeyPat
 @pytest.mark.parametrize(
     ("argv", "sequence", "variant", "window", "mislabel", "seed"),
     [
-        ([], "a", "PL-w", 10, 0.1, 0),
+        (["--scene", "mc-a"], "a", "PL-w", 10, 0.1, 0),
         (["--scene", "mc-b", "--variant", "P-r", "--window", "2", "--mislabel", "0", "--seed", "7"], "b", "P-r", 2, 0.0, 7),
         (["--scene", "mc-a", "--mislabel", "1"], "a", "PL-w", 10, 1.0, 0),
     ],
 )
-def test_valid_options_build_the_engine(argv: list[str], sequence: str, variant: str, window: int, mislabel: float, seed: int) -> None:
+def test_monte_carlo_options_build_the_sim_engine(argv: list[str], sequence: str, variant: str, window: int, mislabel: float, seed: int) -> None:
     args = cli.build_parser().parse_args(["serve", *argv])
     assert args.host == "127.0.0.1" and args.port == 8080  # this machine only, by default
     engine = serve_command.build_engine(args)
@@ -89,6 +98,43 @@ def test_valid_options_build_the_engine(argv: list[str], sequence: str, variant:
     assert (s.sequence, s.variant, s.window, s.mislabel, s.seed) == (sequence, variant, window, mislabel, seed)
     assert engine.variant == variant
     assert engine.keyframes == 0  # nothing runs before the viewer asks
+
+
+@pytest.mark.parametrize(
+    ("argv", "source", "frames", "variant", "window", "seed"),
+    [
+        ([], "rendered scene room (60 s, seed 0)", 1201, "PL-w", 10, 0),
+        (["--scene", "corridor", "--duration", "2.5", "--variant", "P-r", "--window", "4", "--seed", "3"], "rendered scene corridor (2.5 s, seed 3)", 51, "P-r", 4, 3),
+    ],
+)
+def test_rendered_scenes_build_the_stereo_engine(argv: list[str], source: str, frames: int, variant: str, window: int, seed: int) -> None:
+    """`room` is the default; the debugger's stereo pipeline runs every stage and draws the
+    keyframe image and the Hessian; nothing is rendered before the first step."""
+    args = cli.build_parser().parse_args(["serve", *argv])
+    engine = serve_command.build_engine(args)
+    assert isinstance(engine, StereoEngine)
+    assert engine.source == source and len(engine.data_source) == frames
+    s = engine.settings
+    assert (s.variant, s.window, s.seed) == (variant, window, seed)
+    assert not s.skip_unused_stages and s.image_scale is not None and s.hessian
+    assert engine.frames == 0 and engine.keyframes == 0
+
+
+def test_scene_file_and_dataset_build_the_stereo_engine(tmp_path: pathlib.Path) -> None:
+    from backend.data.scenes import builtin_scene, scene_to_json
+    from backend.data.synthetic import SequenceSettings, render_sequence
+
+    scene = tmp_path / "boxes.json"
+    scene.write_text(scene_to_json(builtin_scene("boxes")))
+    engine = serve_command.build_engine(cli.build_parser().parse_args(["serve", "--scene", str(scene), "--duration", "1"]))
+    assert isinstance(engine, StereoEngine) and engine.source == f"rendered scene boxes from {scene} (1 s, seed 0)"
+
+    root = tmp_path / "seq"
+    render_sequence(builtin_scene("room"), root, settings=SequenceSettings(duration_s=0.2))
+    engine = serve_command.build_engine(cli.build_parser().parse_args(["serve", "--dataset", str(root)]))
+    assert isinstance(engine, StereoEngine) and engine.source == f"EuRoC folder {root}" and len(engine.data_source) == 5
+    snapshot = engine.step()  # the first frame is the first keyframe, with its image
+    assert snapshot.keyframe == 0 and snapshot.image is not None
 
 
 def test_console_script_reports_bad_scene(tmp_path: pathlib.Path) -> None:

@@ -1,0 +1,155 @@
+"""What `serve` and `run` run: their shared input options (`--scene`, `--dataset`, ...) and
+the engine built from them.
+
+- `--scene room|corridor|boxes|FILE.json` (default `room`): a rendered scene, frames rendered
+  on demand (`SyntheticSequence`), through the stereo pipeline (`StereoEngine`);
+- `--dataset DIR`: an EuRoC ASL folder through the stereo pipeline;
+- `--scene mc-a|mc-b`: the paper's Monte-Carlo worlds (`SimEngine`: no images).
+
+Bad values raise UsageError (one line, exit code 2); dataset problems raise DatasetError,
+which the command line reports the same way.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import pathlib
+
+MC_SCENES: dict[str, str] = {
+    "mc-a": "Monte-Carlo sequence a: four walls, camera on a circle (DESIGN §4)",
+    "mc-b": "Monte-Carlo sequence b: one wall, camera sliding along it",
+}
+MAX_DURATION_S = 3600.0  # the whole trajectory and its IMU samples are built up front
+
+
+def scene_names() -> tuple[str, ...]:
+    """Every name `--scene` accepts besides a scene file: rendered scenes first."""
+    from backend.data.scenes import SCENE_NAMES
+
+    return (*SCENE_NAMES, *MC_SCENES)
+
+
+def default_scene() -> str:
+    from backend.data.scenes import DEFAULT_SCENE
+
+    return DEFAULT_SCENE
+
+
+def load_scene_argument(text: str, *, other_names: tuple[str, ...] = ()):  # noqa: ANN201
+    """A built-in rendered scene by name, or a scene JSON file; UsageError otherwise.
+    `other_names` are further names the option accepts (named in the error message)."""
+    from app.cli import UsageError
+    from backend.data.scenes import SCENE_NAMES, SceneFileError, builtin_scene, load_scene
+
+    if text in SCENE_NAMES:
+        return builtin_scene(text)
+    path = pathlib.Path(text)
+    if not path.exists():
+        names = ", ".join((*SCENE_NAMES, *other_names))
+        raise UsageError(f"--scene {text}: neither a built-in scene ({names}) nor an existing scene file")
+    try:
+        return load_scene(path)
+    except SceneFileError as e:
+        raise UsageError(str(e)) from None
+
+
+def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float) -> None:
+    """`--scene` | `--dataset` and the options of the engines they start."""
+    names = scene_names()
+    source = p.add_mutually_exclusive_group()
+    source.add_argument("--scene", default=None, metavar="NAME|FILE.json",
+                        help=f"rendered scene ({', '.join(names[:-len(MC_SCENES)])}, or a scene JSON file) through the stereo pipeline, "
+                             f"or a Monte-Carlo world ({', '.join(MC_SCENES)}; no images); default {default_scene()}")
+    source.add_argument("--dataset", default=None, metavar="DIR", help="EuRoC ASL folder (the one holding mav0) through the stereo pipeline")
+    p.add_argument("--duration", type=float, default=None, metavar="SECONDS",
+                   help=f"seconds of motion of a rendered scene (default {duration_default:g}; 20 frames per second)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the scene, its noise and the RANSACs (default 0)")
+    p.add_argument("--mislabel", type=float, default=None,
+                   help="mc-a / mc-b only: fraction of features with a wrong plane-instance label (default 0.1)")
+    p.add_argument("--window", type=int, default=10, help="keyframes optimized per step (default 10)")
+    p.set_defaults(duration_default=duration_default)
+
+
+class FirstFrames:
+    """The first `count` frames of a stereo reader (everything else delegated to it)."""
+
+    def __init__(self, source, count: int) -> None:  # noqa: ANN001
+        self._source = source
+        self._count = min(int(count), len(source))
+
+    def __len__(self) -> int:
+        return self._count
+
+    def __getattr__(self, name: str):  # noqa: ANN204
+        return getattr(self._source, name)
+
+
+def _refuse(args: argparse.Namespace, what: str, names: tuple[str, ...]) -> None:
+    from app.cli import UsageError
+
+    for name in names:
+        value = getattr(args, name.lstrip("-").replace("-", "_"), None)
+        if value is not None:
+            raise UsageError(f"{name} {value:g}: not used with {what}" if isinstance(value, float) else f"{name} {value}: not used with {what}")
+
+
+def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
+    """The engine for `--scene` / `--dataset`; UsageError for bad values, DatasetError for
+    a bad EuRoC folder. `headless` (`run`): the stereo pipeline skips the stages its variant
+    does not use (as the paper's Table III), draws no keyframe image and no Hessian; the
+    debugger gets every stage, the image and the Hessian."""
+    from app.cli import UsageError
+
+    if args.window < 2:
+        raise UsageError(f"--window {args.window}: must be at least 2")
+    if getattr(args, "history", 1) < 1:
+        raise UsageError(f"--history {args.history}: must be at least 1")
+    frames = getattr(args, "frames", None)
+    if frames is not None and frames < 1:
+        raise UsageError(f"--frames {frames}: must be at least 1")
+    scene = args.scene or default_scene()
+
+    if args.dataset is None and scene in MC_SCENES:
+        from backend.pipeline.sim_engine import SimEngine, SimSettings
+
+        _refuse(args, f"the Monte-Carlo scene {scene} (no images)", ("--duration", "--frames"))
+        mislabel = 0.1 if args.mislabel is None else args.mislabel
+        if not 0.0 <= mislabel <= 1.0:
+            raise UsageError(f"--mislabel {args.mislabel}: must be a fraction in [0, 1]")
+        return SimEngine(SimSettings(sequence=scene[-1], seed=args.seed, variant=args.variant, window=args.window, mislabel=mislabel))
+
+    if args.dataset is not None:
+        from backend.data.euroc import EurocDataset
+
+        _refuse(args, "--dataset", ("--duration", "--mislabel"))
+        source = EurocDataset(args.dataset)  # DatasetError: one line naming the bad file
+        name = f"EuRoC folder {args.dataset}"
+    else:
+        from backend.data.synthetic import SequenceSettings, SyntheticSequence
+
+        _refuse(args, f"the rendered scene {scene} (mc-a / mc-b only)", ("--mislabel",))
+        duration = args.duration_default if args.duration is None else args.duration
+        if not (math.isfinite(duration) and 0.0 < duration <= MAX_DURATION_S):
+            raise UsageError(f"--duration {duration:g}: must be more than 0 and at most {MAX_DURATION_S:g} seconds")
+        scene_obj = load_scene_argument(scene, other_names=tuple(MC_SCENES))
+        try:
+            settings = SequenceSettings(duration_s=duration, seed=args.seed)
+        except ValueError as e:
+            raise UsageError(f"--duration {duration:g}: {e}") from None
+        source = SyntheticSequence(scene_obj, settings=settings)  # frames rendered on demand
+        label = scene if scene == scene_obj.name else f"{scene_obj.name} from {scene}"
+        name = f"rendered scene {label} ({duration:g} s, seed {args.seed})"
+    if frames is not None:
+        source = FirstFrames(source, frames)
+    return _stereo_engine(source, name, args, headless=headless)
+
+
+def _stereo_engine(source, name: str, args: argparse.Namespace, *, headless: bool):  # noqa: ANN001, ANN202
+    from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
+
+    if headless:
+        settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=True, image_scale=None, hessian=False)
+    else:
+        settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=False, hessian=True)
+    return StereoEngine(source, settings=settings, name=name)
