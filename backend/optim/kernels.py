@@ -194,6 +194,68 @@ def accumulate_normal_equations(J, residual, cols, H, g):  # noqa: ANN001
             b[:] = 0.0
 
 
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def accumulate_normal_blocks(J, residual, cols, rmap, lo, mid, hi, H_rr, H_rl, d_points, B_lines, g):  # noqa: ANN001
+    """As :func:`accumulate_normal_equations`, into the blocks the Schur complement needs
+    instead of a dense H: `H_rr` (r, r) over the reduced columns (cameras, planes; `rmap`
+    maps a global column to its reduced index or -1), `H_rl` (r, hi - lo) between reduced
+    and landmark columns [lo, hi), the points' diagonal `d_points` (mid - lo,) and the
+    lines' 4×4 blocks `B_lines` ((hi - mid) / 4, 4, 4). Both triangles of `H_rr` and of the
+    line blocks are filled. A factor touches one landmark at most."""
+    M, R, D = J.shape
+    A = np.zeros((D, D))
+    b = np.zeros(D)
+    for m in range(M):
+        Jm = J[m]
+        for r in range(R):
+            rr = residual[m, r]
+            Jr = Jm[r]
+            for i in range(D):
+                jri = Jr[i]
+                b[i] += jri * rr
+                Ai = A[i]
+                for j in range(D):
+                    Ai[j] += jri * Jr[j]
+        last = m == M - 1
+        if not last:
+            for i in range(D):
+                if cols[m + 1, i] != cols[m, i]:
+                    last = True
+                    break
+        if last:
+            for i in range(D):
+                ci = cols[m, i]
+                if ci < 0:
+                    continue
+                g[ci] -= b[i]
+                for j in range(i, D):
+                    cj = cols[m, j]
+                    if cj < 0:
+                        continue
+                    v = A[i, j]
+                    ri = rmap[ci]
+                    rj = rmap[cj]
+                    if ri >= 0 and rj >= 0:
+                        H_rr[ri, rj] += v
+                        if i != j:
+                            H_rr[rj, ri] += v
+                    elif ri >= 0:
+                        H_rl[ri, cj - lo] += v
+                    elif rj >= 0:
+                        H_rl[rj, ci - lo] += v
+                    elif ci < mid:  # a point: its own 1×1 block
+                        d_points[ci - lo] += v if i == j else 2.0 * v
+                    else:
+                        k = (ci - mid) // 4
+                        a = (ci - mid) % 4
+                        c = (cj - mid) % 4
+                        B_lines[k, a, c] += v
+                        if i != j:
+                            B_lines[k, c, a] += v
+            A[:, :] = 0.0
+            b[:] = 0.0
+
+
 @numba.njit(cache=True, nogil=True)
 def mirror_upper(H):  # noqa: ANN001
     """Copy the upper triangle of the square H into its lower triangle, in place."""

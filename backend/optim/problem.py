@@ -218,6 +218,48 @@ class Linearization:
         kernels.mirror_upper(H)
         return H, g
 
+    def normal_blocks(self, layout: "Layout") -> NormalBlocks:
+        """The same normal equations as :meth:`normal_equations`, in Schur blocks
+        (:class:`NormalBlocks`): memory and time grow with cameras × landmarks, not with
+        (cameras + landmarks)², which matters for windows with thousands of landmarks."""
+        n = self.n_params
+        lo, mid, hi = layout.group_start["points"], layout.group_start["lines"], layout.group_start["planes"]
+        reduced = np.r_[0:lo, hi:n]
+        rmap = np.full(n, -1, dtype=np.int64)
+        rmap[reduced] = np.arange(len(reduced))
+        H_rr = np.zeros((len(reduced), len(reduced)))
+        H_rl = np.zeros((len(reduced), hi - lo))
+        d_points = np.zeros(mid - lo)
+        B_lines = np.zeros(((hi - mid) // 4, 4, 4))
+        g = np.zeros(n)
+        for b in self.batches:
+            kernels.accumulate_normal_blocks(b.jacobian, b.residual, b.cols, rmap, lo, mid, hi, H_rr, H_rl, d_points, B_lines, g)
+        return NormalBlocks(reduced, H_rr, H_rl, d_points, B_lines, g)
+
+
+@dataclasses.dataclass
+class NormalBlocks:
+    """`H = JᵀJ` and `g = -Jᵀr` in the blocks the Schur complement uses, without the dense
+    landmark × landmark part (block-diagonal: points 1×1, lines 4×4): `H_rr` (r, r) over the
+    reduced columns `reduced` (cameras, then planes), `H_rl` (r, l) against the landmark
+    columns, `d_points` (P,), `B_lines` (L, 4, 4), and g (n,)."""
+
+    reduced: np.ndarray
+    H_rr: np.ndarray
+    H_rl: np.ndarray
+    d_points: np.ndarray
+    B_lines: np.ndarray
+    g: np.ndarray
+
+    def damped(self, lam: float) -> "NormalBlocks":
+        """Marquardt's `H + λ diag(H)` (a copy; g shared)."""
+        H_rr = self.H_rr.copy()
+        H_rr[np.diag_indices_from(H_rr)] *= 1.0 + lam
+        B = self.B_lines.copy()
+        idx = np.arange(4)
+        B[:, idx, idx] *= 1.0 + lam
+        return NormalBlocks(self.reduced, H_rr, self.H_rl, self.d_points * (1.0 + lam), B, self.g)
+
 
 class _Assembler:
     """Collects whitened factor batches."""
@@ -277,7 +319,7 @@ class Problem:
     def prepare(self) -> None:
         """Build the structure-only caches (column maps, normalized observations) and compile
         the kernels once, so that a timed optimization measures the numeric work only."""
-        self.linearize(self.initial_state()).normal_equations()
+        self.linearize(self.initial_state()).normal_blocks(self.layout)
 
     def initial_state(self) -> State:
         d = self.data

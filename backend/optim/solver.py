@@ -15,7 +15,7 @@ import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
 
-from backend.optim.problem import Layout, Linearization, Problem, State
+from backend.optim.problem import Layout, Linearization, NormalBlocks, Problem, State
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,36 +67,45 @@ def _invert_blocks(blocks: np.ndarray) -> np.ndarray:
 
 
 def solve_schur(H: np.ndarray, g: np.ndarray, layout: Layout) -> np.ndarray:
-    """Solve `H δ = g` by eliminating the landmark columns (points: 1×1 blocks, lines: 4×4
-    blocks, block-diagonal in H) and solving the reduced camera|plane system by Cholesky.
-    H is used as workspace: its contents are undefined afterwards."""
+    """Solve `H δ = g` (dense H, both triangles) by eliminating the landmark columns
+    (:func:`solve_schur_blocks`)."""
     n = layout.n_params
-    lo = layout.group_start["points"]
-    mid = layout.group_start["lines"]
-    hi = layout.group_start["planes"]
-    if hi == lo:  # no landmark variables (-w with every feature on a plane)
-        return _dense_solve(H, g)
+    lo, mid, hi = layout.group_start["points"], layout.group_start["lines"], layout.group_start["planes"]
     reduced = np.r_[0:lo, hi:n]
+    n_lines = (hi - mid) // 4
+    blocks = H[mid:hi, mid:hi].reshape(n_lines, 4, n_lines, 4)[np.arange(n_lines), :, np.arange(n_lines), :] if n_lines else np.zeros((0, 4, 4))
+    return solve_schur_blocks(NormalBlocks(reduced, H[np.ix_(reduced, reduced)], H[reduced, lo:hi], np.diagonal(H)[lo:mid].copy(), blocks, g), layout)
+
+
+def solve_schur_blocks(ne: NormalBlocks, layout: Layout) -> np.ndarray:
+    """Solve the normal equations by eliminating the landmark columns (points: 1×1 blocks,
+    lines: 4×4 blocks, block-diagonal in H) and solving the reduced camera|plane system by
+    Cholesky. `ne.H_rr` is used as workspace: its contents are undefined afterwards."""
+    n = layout.n_params
+    lo, mid, hi = layout.group_start["points"], layout.group_start["lines"], layout.group_start["planes"]
+    g = ne.g
+    if hi == lo:  # no landmark variables (-w with every feature on a plane)
+        return _dense_solve(ne.H_rr, g.copy())
+    reduced = ne.reduced
     delta = np.zeros(n)
-    H_rr = H[np.ix_(reduced, reduced)]
     g_r = g[reduced]
-    H_rl = H[reduced, lo:hi]
+    H_rl = ne.H_rl
     g_l = g[lo:hi]
     # W = H_rl H_ll⁻¹ and H_ll⁻¹ g_l, blockwise.
     W = np.empty_like(H_rl)
     Hinv_g = np.empty(hi - lo)
     n_pts = mid - lo
     if n_pts:
-        d_inv = 1.0 / np.diagonal(H)[lo:mid]
+        d_inv = 1.0 / ne.d_points
         W[:, :n_pts] = H_rl[:, :n_pts] * d_inv
         Hinv_g[:n_pts] = g_l[:n_pts] * d_inv
     n_lines = (hi - mid) // 4
     if n_lines:
-        blocks = H[mid:hi, mid:hi].reshape(n_lines, 4, n_lines, 4)[np.arange(n_lines), :, np.arange(n_lines), :]
-        inv = _invert_blocks(blocks)
+        inv = _invert_blocks(ne.B_lines)
         W[:, n_pts:] = np.einsum("rli,lij->rlj", H_rl[:, n_pts:].reshape(-1, n_lines, 4), inv).reshape(len(reduced), -1)
         Hinv_g[n_pts:] = np.einsum("lij,lj->li", inv, g_l[n_pts:].reshape(n_lines, 4)).ravel()
-    S = H_rr - W @ H_rl.T
+    S = ne.H_rr
+    S -= W @ H_rl.T
     delta_r = _dense_solve(S, g_r - H_rl @ Hinv_g)
     delta[reduced] = delta_r
     # δ_l = H_ll⁻¹ (g_l - H_lr δ_r) = H_ll⁻¹ g_l - Wᵀ δ_r (H_ll⁻¹ is symmetric).
@@ -106,8 +115,7 @@ def solve_schur(H: np.ndarray, g: np.ndarray, layout: Layout) -> np.ndarray:
 
 def solve_normal_equations(lin: Linearization, layout: Layout) -> np.ndarray:
     """Gauss-Newton step δ (n_params,) solving `JᵀJ δ = -Jᵀ r` by the Schur complement."""
-    H, g = lin.normal_equations()
-    return solve_schur(H, g, layout)
+    return solve_schur_blocks(lin.normal_blocks(layout), layout)
 
 
 METHODS: tuple[str, ...] = ("gn", "lm")
@@ -151,17 +159,15 @@ def optimize(
     lam = initial_lambda
     for _ in range(max_iterations):
         t0 = time.perf_counter()
-        H, g = lin.normal_equations()
+        blocks = lin.normal_blocks(problem.layout)
         t_solve += time.perf_counter() - t0
         step = 1.0
         for attempt in range(max_step_halvings + 1 if method == "gn" else 12):
             t0 = time.perf_counter()
             if method == "lm":
-                H_damped = H.copy()
-                H_damped[np.diag_indices_from(H_damped)] *= 1.0 + lam
-                delta = solve_schur(H_damped, g, problem.layout)
+                delta = solve_schur_blocks(blocks.damped(lam), problem.layout)
             elif attempt == 0:
-                delta = solve_schur(H, g, problem.layout)
+                delta = solve_schur_blocks(blocks, problem.layout)
             t_solve += time.perf_counter() - t0
             if not np.all(np.isfinite(delta)):
                 delta = np.zeros_like(delta)

@@ -51,3 +51,38 @@ def test_schur_solve_matches_a_dense_solve_and_survives_singularity(variant: str
     singular[:, 0] = singular[0, :] = 0.0
     delta = solve_schur(singular, g * (np.arange(len(g)) > 0), problem.layout)
     assert np.all(np.isfinite(delta))
+
+
+@pytest.mark.parametrize("robust", [None, 2.0])
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_schur_blocks_equal_the_dense_normal_equations(variant: str, robust: float | None) -> None:
+    """The solver accumulates only the blocks the Schur complement needs; they must be the
+    dense H's (stereo observations included: the right image of the anchor touches the
+    anchor pose twice)."""
+    from backend.optim.solver import solve_schur, solve_schur_blocks
+
+    problem = build_problem(_stereo_data(), variant, robust_px=robust)
+    lin = problem.linearize(problem.initial_state())
+    H, g = lin.normal_equations()
+    blocks = lin.normal_blocks(problem.layout)
+    L = problem.layout
+    lo, mid, hi = L.group_start["points"], L.group_start["lines"], L.group_start["planes"]
+    r = blocks.reduced
+    np.testing.assert_allclose(blocks.H_rr, H[np.ix_(r, r)], rtol=1e-12, atol=1e-10 * np.abs(H).max())
+    np.testing.assert_allclose(blocks.H_rl, H[r, lo:hi], rtol=1e-12, atol=1e-10 * np.abs(H).max())
+    np.testing.assert_allclose(blocks.d_points, np.diagonal(H)[lo:mid], rtol=1e-12)
+    for k in range(len(blocks.B_lines)):
+        s = mid + 4 * k
+        np.testing.assert_allclose(blocks.B_lines[k], H[s : s + 4, s : s + 4], rtol=1e-12, atol=1e-10 * np.abs(H).max())
+    # Only the diagonal blocks of the landmark part are non-zero.
+    off = H[lo:hi, lo:hi].copy()
+    off[np.arange(lo, mid) - lo, np.arange(lo, mid) - lo] = 0.0
+    for k in range(len(blocks.B_lines)):
+        s = mid - lo + 4 * k
+        off[s : s + 4, s : s + 4] = 0.0
+    assert not off.any()
+    np.testing.assert_allclose(blocks.g, g)
+    damped = blocks.damped(0.5)
+    np.testing.assert_allclose(np.diagonal(damped.H_rr), 1.5 * np.diagonal(H)[r])
+    np.testing.assert_allclose(damped.d_points, 1.5 * np.diagonal(H)[lo:mid])
+    np.testing.assert_allclose(solve_schur_blocks(blocks, problem.layout), solve_schur(H.copy(), g, problem.layout), rtol=1e-8, atol=1e-12)
