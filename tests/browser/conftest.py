@@ -74,3 +74,10 @@ def wait_shown(page, text: str) -> None:  # noqa: ANN001
     from playwright.sync_api import expect
 
     expect(field(page, "Shown")).to_have_value(text, timeout=TIMEOUT_MS)
+
+
+def close_notifications(page) -> None:  # noqa: ANN001
+    """Close notifications such as Chromium's "software WebGL" before a screenshot."""
+    close = page.locator(".mantine-Notification-closeButton")
+    for i in range(close.count()):
+        close.nth(i).click()

@@ -11,7 +11,7 @@ import re
 import numpy as np
 import pytest
 
-from tests.browser.conftest import field, open_page, start_debugger, wait_shown
+from tests.browser.conftest import close_notifications, field, open_page, start_debugger, wait_shown
 
 
 def _saturated_pixels(png: bytes) -> int:
@@ -145,9 +145,7 @@ def test_readme_screenshot(browser, tmp_path) -> None:  # noqa: ANN001
         debugger.wait_idle(timeout=120)
         page = open_page(browser, debugger, height=1250)
         wait_shown(page, "44 (PL-w)")
-        close = page.locator(".mantine-Notification-closeButton")
-        for i in range(close.count()):  # notifications such as "software WebGL"
-            close.nth(i).click()
+        close_notifications(page)
         page.wait_for_timeout(1500)
         path = pathlib.Path(os.environ.get("COPLANAR_README_SCREENSHOT", tmp_path / "debugger.png"))
         page.screenshot(path=str(path))

@@ -1,0 +1,49 @@
+"""The debugger on the stereo pipeline (the default of `coplanar serve`), as a user sees it:
+the keyframe image panel with its features, the map and the report; the README's picture."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+import numpy as np
+
+from tests.browser.conftest import close_notifications, free_port, open_page, wait_shown
+
+
+def test_stereo_debugger_shows_keyframe_image_and_map(browser, tmp_path) -> None:  # noqa: ANN001
+    """Twelve keyframes of the rendered room; written to $COPLANAR_README_SCREENSHOT_STEREO
+    when set (docs/stereo_debugger.png), else to a temporary file."""
+    from PIL import Image
+
+    from backend.data.scenes import builtin_scene
+    from backend.data.synthetic import SequenceSettings, SyntheticSequence
+    from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
+    from viewer.app import Debugger
+
+    sequence = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=6.0))
+    engine = StereoEngine(sequence, settings=StereoSettings(variant="PL-w"), name="rendered scene room")
+    debugger = Debugger(engine, port=free_port())
+    debugger.server.scene.configure_environment_map(hdri=None)
+    try:
+        for _ in range(12):
+            debugger.submit("step")
+        debugger.wait_idle(timeout=180)
+        snapshot = debugger.history[-1]
+        page = open_page(browser, debugger, height=1250)
+        wait_shown(page, f"{snapshot.keyframe} (PL-w)")
+        page.get_by_text("Keyframe image").first.wait_for()
+        # The keyframe image is on the page (an <img> with a data URL, larger than the panel's blanks).
+        sizes = page.locator("img").evaluate_all("els => els.map(e => e.naturalWidth * e.naturalHeight)")
+        assert max(sizes) >= 300 * 150, sizes
+        assert page.get_by_text(f"{len(snapshot.planes)} planes").count() >= 1
+        close_notifications(page)
+        page.wait_for_timeout(1500)
+        path = pathlib.Path(os.environ.get("COPLANAR_README_SCREENSHOT_STEREO", tmp_path / "stereo_debugger.png"))
+        page.screenshot(path=str(path))
+        rgb = np.asarray(Image.open(path).convert("RGB")).astype(int)
+        assert rgb.shape[:2] == (1250, 1400)
+        assert int(np.sum(rgb.max(axis=2) - rgb.min(axis=2) > 80)) > 5000  # coloured map and image, not a blank page
+        page.close()
+    finally:
+        debugger.stop()
