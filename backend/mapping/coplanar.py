@@ -130,6 +130,20 @@ def match_plane(n: np.ndarray, d: float, planes_n: np.ndarray, planes_d: np.ndar
     return int(np.flatnonzero(ok)[np.argmin(offset[ok])])
 
 
+def refit_plane(n_previous: np.ndarray, support_world: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Least-squares plane through the support points (K, 3) (world, m), its normal on the
+    side of `n_previous`; None with fewer than three finite points or a degenerate set."""
+    pts = np.asarray(support_world, dtype=float).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) < 3:
+        return None
+    try:
+        n, d = plane_geo.fit_plane(pts)
+    except ValueError:
+        return None
+    return (-n, -d) if n @ n_previous < 0 else (n, d)
+
+
 def plane_hull(n: np.ndarray, d: float, p_world: np.ndarray) -> np.ndarray:
     """Convex hull (H, 3) of world points projected onto the plane, counter-clockwise seen
     from the +n side; empty where fewer than three points span an area."""

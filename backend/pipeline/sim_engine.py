@@ -30,7 +30,6 @@ import numpy as np
 from backend.eval import sequences
 from backend.eval.trajectory import ate_rmse, translational_rmse
 from backend.geometry import line as line_geo
-from backend.geometry import plane as plane_geo
 from backend.geometry import so3
 from backend.geometry.se3 import Poses
 from backend.mapping import coplanar
@@ -396,12 +395,16 @@ class SimEngine:
         self._p_plane[pts[q_p >= 0]] = q_p[q_p >= 0]
         self._l_plane[lns[q_l >= 0]] = q_l[q_l >= 0]
 
-    def _hull(self, q: int) -> np.ndarray:
+    def _plane_support(self, q: int) -> np.ndarray:
+        """World points (K, 3) of plane q's landmarks: its points and its segments' endpoints."""
         pts = [self._p_world[(self._p_plane == q) & self._p_ok]]
         lines = np.flatnonzero((self._l_plane == q) & self._l_ok)
         if len(lines):
             pts.append(self._segments_world(lines).reshape(-1, 3))
-        return coplanar.plane_hull(self._plane_n[q], self._plane_d[q], np.concatenate(pts))
+        return np.concatenate(pts)
+
+    def _hull(self, q: int) -> np.ndarray:
+        return coplanar.plane_hull(self._plane_n[q], self._plane_d[q], self._plane_support(q))
 
     def _prune(self, k: int) -> None:
         """Forget observations older than the window and fixed horizon, except anchors."""
@@ -547,23 +550,9 @@ class SimEngine:
     def _refit_unused_planes(self, optimized: set[int]) -> None:
         """Planes the variant does not optimize follow their landmarks (least squares)."""
         for q in range(len(self._plane_n)):
-            if q in optimized:
-                continue
-            pts = [self._p_world[(self._p_plane == q) & self._p_ok]]
-            lines = np.flatnonzero((self._l_plane == q) & self._l_ok)
-            if len(lines):
-                pts.append(self._segments_world(lines).reshape(-1, 3))
-            support = np.concatenate(pts)
-            support = support[np.all(np.isfinite(support), axis=1)]
-            if len(support) < 3:
-                continue
-            try:
-                n, d = plane_geo.fit_plane(support)
-            except ValueError:
-                continue
-            if n @ self._plane_n[q] < 0:
-                n, d = -n, -d
-            self._plane_n[q], self._plane_d[q] = n, d
+            fit = None if q in optimized else coplanar.refit_plane(self._plane_n[q], self._plane_support(q))
+            if fit is not None:
+                self._plane_n[q], self._plane_d[q] = fit
 
     # ------------------------------------------------------------------ snapshot
 

@@ -49,7 +49,6 @@ from backend.frontend.lines import LineSettings, Segments, StereoSegments, stere
 from backend.frontend.points import Keypoints, PointSettings, best_matches, detect_points, pair_hamming, stereo_points
 from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
 from backend.geometry import line as line_geo
-from backend.geometry import plane as plane_geo
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.geometry.se3 import Poses
@@ -671,13 +670,17 @@ class StereoEngine:
                 self._instance_plane[q] = plane
         return Detection(det.instance, det.candidates, det.inliers, det.accepted, det.plane)
 
-    def _hull(self, q: int) -> np.ndarray:
+    def _plane_support(self, q: int) -> np.ndarray:
+        """World points (K, 3) of plane q's landmarks: its points and its segments' endpoints."""
         P, Lm = self._points, self._lines
         pts = [P.p_world[(P.plane[:] == q) & P.ok[:]]]
         lines = np.flatnonzero((Lm.plane[:] == q) & Lm.ok[:])
         if len(lines):
             pts.append(self._segments_world(lines).reshape(-1, 3))
-        return coplanar.plane_hull(self._planes.n[q], self._planes.d[q], np.concatenate(pts))
+        return np.concatenate(pts)
+
+    def _hull(self, q: int) -> np.ndarray:
+        return coplanar.plane_hull(self._planes.n[q], self._planes.d[q], self._plane_support(q))
 
     # ------------------------------------------------------------------ window bundle adjustment
 
@@ -809,25 +812,10 @@ class StereoEngine:
 
     def _refit_unused_planes(self, optimized: set[int]) -> None:
         """Planes the variant does not optimize follow their landmarks (least squares)."""
-        P, Lm = self._points, self._lines
         for q in range(len(self._planes)):
-            if q in optimized:
-                continue
-            support = [P.p_world[(P.plane[:] == q) & P.ok[:]]]
-            lines = np.flatnonzero((Lm.plane[:] == q) & Lm.ok[:])
-            if len(lines):
-                support.append(self._segments_world(lines).reshape(-1, 3))
-            pts = np.concatenate(support)
-            pts = pts[np.all(np.isfinite(pts), axis=1)]
-            if len(pts) < 3:
-                continue
-            try:
-                n, d = plane_geo.fit_plane(pts)
-            except ValueError:
-                continue
-            if n @ self._planes.n[q] < 0:
-                n, d = -n, -d
-            self._planes.n[q], self._planes.d[q] = n, d
+            fit = None if q in optimized else coplanar.refit_plane(self._planes.n[q], self._plane_support(q))
+            if fit is not None:
+                self._planes.n[q], self._planes.d[q] = fit
 
     def _cull(self, k: int) -> None:
         """Drop window observations whose error stays above `outlier_px` after the solve;
