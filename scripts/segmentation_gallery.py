@@ -21,6 +21,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from backend.data.calibration import read_camera_yaml, stereo_rectification  # noqa: E402
+from backend.data.euroc import read_indexed_poses  # noqa: E402
 from backend.frontend.segmentation import PlaneMasks  # noqa: E402
 from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter  # noqa: E402
 
@@ -45,7 +46,7 @@ def main() -> int:
         print(f"no EuRoC pairs at {PAIRS}", file=sys.stderr)
         return 2
     rect = stereo_rectification(read_camera_yaml(PAIRS / "sensorLeft.yaml"), read_camera_yaml(PAIRS / "sensorRight.yaml"))
-    poses = read_body_poses(PAIRS / "groundtruth_from_openvins_original.txt")
+    poses = read_indexed_poses(PAIRS / "groundtruth_from_openvins_original.txt")
     segmenter = GeometricPlaneSegmenter()
     out = REPO / "docs" / "segmentation"
     out.mkdir(parents=True, exist_ok=True)
@@ -62,19 +63,6 @@ def main() -> int:
         print(f"pair {i}: {masks.count} planes in {ms:.0f} ms: {summary}")
         cv2.imwrite(str(out / f"euroc_pair_{i}.png"), cv2.cvtColor(overlay(left, masks), cv2.COLOR_RGB2BGR))
     return 0
-
-
-def read_body_poses(path: pathlib.Path) -> dict[int, np.ndarray]:
-    """`idx timestamp tx ty tz qx qy qz qw` rows to {idx: T_world_body (4, 4)}."""
-    from scipy.spatial.transform import Rotation
-
-    poses = {}
-    for row in np.atleast_2d(np.loadtxt(path, comments="#")):
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(row[5:9]).as_matrix()
-        T[:3, 3] = row[2:5]
-        poses[int(row[0])] = T
-    return poses
 
 
 if __name__ == "__main__":

@@ -345,3 +345,17 @@ def _load_gray(path: pathlib.Path, calibration: CameraCalibration) -> np.ndarray
     if image.shape != (calibration.height, calibration.width):
         raise DatasetError(path, f"image is {image.shape[1]}x{image.shape[0]}, {calibration.source} says {calibration.width}x{calibration.height}")
     return image
+
+
+def read_indexed_poses(path: pathlib.Path | str) -> dict[int, np.ndarray]:
+    """Rows `index timestamp tx ty tz qx qy qz qw` (as in the shared EuRoC V1_01 pairs'
+    ground truth) to {index: T_world_body (4, 4)}, metres; quaternions in x y z w order."""
+    from scipy.spatial.transform import Rotation
+
+    poses = {}
+    for row in np.atleast_2d(np.loadtxt(path, comments="#")):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(row[5:9]).as_matrix()
+        T[:3, 3] = row[2:5]
+        poses[int(row[0])] = T
+    return poses

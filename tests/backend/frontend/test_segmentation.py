@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from backend.data.calibration import read_camera_yaml, stereo_rectification
+from backend.data.euroc import read_indexed_poses
 from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
 from backend.frontend.segmentation import NO_PLANE, PlaneMasks, PlaneSegmenter
@@ -104,23 +105,11 @@ def test_geometric_segmenter_leaves_curved_surfaces_mostly_unassigned() -> None:
     assert np.median(shares) < 0.2, shares
 
 
-def _body_poses(path: pathlib.Path) -> dict[int, np.ndarray]:
-    from scipy.spatial.transform import Rotation
-
-    poses = {}
-    for row in np.atleast_2d(np.loadtxt(path, comments="#")):
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(row[5:9]).as_matrix()
-        T[:3, 3] = row[2:5]
-        poses[int(row[0])] = T
-    return poses
-
-
 def test_geometric_segmenter_finds_floor_and_walls_on_euroc() -> None:
     if not PAIRS.is_dir():
         pytest.skip(f"EuRoC pairs not found at {PAIRS}")
     rect = stereo_rectification(read_camera_yaml(PAIRS / "sensorLeft.yaml"), read_camera_yaml(PAIRS / "sensorRight.yaml"))
-    poses = _body_poses(PAIRS / "groundtruth_from_openvins_original.txt")
+    poses = read_indexed_poses(PAIRS / "groundtruth_from_openvins_original.txt")
     segmenter = GeometricPlaneSegmenter()
     for i, T_world_body in sorted(poses.items()):
         raw0 = cv2.imread(str(PAIRS / f"left_img_{i}.png"), cv2.IMREAD_GRAYSCALE)
