@@ -56,7 +56,8 @@ def _report_markdown(s: Snapshot) -> str:
     return (
         f"**keyframe {s.keyframe}** · {r.variant} · window {r.window} + {r.fixed_poses} fixed\n\n"
         f"{notes}"
-        f"iterations {r.iterations} ({'converged' if r.converged else 'not converged'}) · "
+        f"iterations {r.iterations} ({r.termination or ('converged' if r.converged else 'not converged')}"
+        f"{f'; {r.dropped_landmarks} landmarks left out of a step' if r.dropped_landmarks else ''}) · "
         f"cost {r.initial_cost:.4g} → {r.final_cost:.4g}\n\n"
         f"time (ms): {stages}\n\n"
         f"**trajectory error**: RMSE {s.metrics.rmse_cm:.2f} cm · ATE (SE3) {s.metrics.ate_cm:.2f} cm\n\n"

@@ -263,6 +263,19 @@ def relative_pose_error(
     return residual, J
 
 
+def pose_distance_error(t_world_camera: np.ndarray, i: np.ndarray, j: np.ndarray, distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance prior residual (M, 1): `|t_j - t_i| - distance` (metres) for pose pairs
+    (i, j) of the (N, 3) positions. Jacobian (M, 1, 12) w.r.t. [pose i | pose j] with
+    `u = (t_j - t_i) / |t_j - t_i|`: `[0, -uᵀ | 0, uᵀ]` (rotations do not enter)."""
+    diff = t_world_camera[j] - t_world_camera[i]
+    norm = np.linalg.norm(diff, axis=-1)
+    u = diff / np.maximum(norm, 1e-12)[:, None]
+    J = np.zeros((len(i), 1, 12))
+    J[:, 0, 3:6] = -u
+    J[:, 0, 9:12] = u
+    return (norm - distance)[:, None], J
+
+
 def pose_prior_error(R: np.ndarray, t: np.ndarray, R_prior: np.ndarray, t_prior: np.ndarray) -> tuple[np.ndarray, Blocks]:
     """Prior residual (M, 6): `[Log(R_priorᵀ R), t - t_prior]`, block "pose"."""
     r_rot = so3.log(_transpose(R_prior) @ R)

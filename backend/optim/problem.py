@@ -83,6 +83,18 @@ class PosePrior:
 
 
 @dataclasses.dataclass(frozen=True)
+class DistancePrior:
+    """Measured distances (metres) between the positions of pose pairs (i, j), standard
+    deviation `sigma` (metres). One pair fixes the scale gauge of a monocular problem (its
+    seventh freedom) without constraining anything else."""
+
+    i: np.ndarray
+    j: np.ndarray
+    distance: np.ndarray
+    sigma: float
+
+
+@dataclasses.dataclass(frozen=True)
 class ProblemData:
     """Everything a variant needs; landmark states are initial values.
 
@@ -114,6 +126,7 @@ class ProblemData:
     sigma_px: float = 1.0
     sigma_plane: float = 0.01
     fixed_poses: np.ndarray | None = None  # bool (N,): held constant (no columns)
+    distance_prior: DistancePrior | None = None
 
 
 @dataclasses.dataclass
@@ -498,6 +511,10 @@ class Problem:
             res, J = factors.pose_prior_error(poses.R_world_camera[pr.index], poses.t_world_camera[pr.index], pr.R_world_camera, pr.t_world_camera)
             scale = np.array([1 / pr.sigma_rot] * 3 + [1 / pr.sigma_pos] * 3)
             asm.add("prior", res * scale, J["pose"] * scale[:, None], [(L.pose_col[pr.index], 6)])
+        dp = d.distance_prior
+        if dp is not None and len(dp.i):
+            res, J = factors.pose_distance_error(poses.t_world_camera, dp.i, dp.j, dp.distance)
+            asm.add("distance_prior", res, J, [(L.pose_col[dp.i], 6), (L.pose_col[dp.j], 6)], scale=1.0 / dp.sigma)
         return asm.build()
 
     def _line_plane_residuals(self, state: State, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, int]]]:

@@ -534,6 +534,7 @@ class SimEngine:
         report = OptimizationReport(
             variant=self._variant, method=s.method, iterations=rep.iterations, initial_cost=rep.initial_cost, final_cost=rep.final_cost,
             converged=rep.converged, items=rep.items, params=rep.params, window=int(free.sum()), fixed_poses=int((~free).sum()), timing_ms=timing,
+            termination=rep.termination, dropped_landmarks=rep.dropped_landmarks,
         )
         self._last = self._snapshot(k, detection, det_state, report, hessian)
         return self._last

@@ -118,7 +118,9 @@ class Detection:
 @dataclasses.dataclass(frozen=True)
 class OptimizationReport:
     """The window solve: variant, iterations, costs (½ Σ whitened residual², unitless), and
-    wall time per stage in milliseconds."""
+    wall time per stage in milliseconds. `termination` says how the solve ended (see
+    `backend.optim.solver`); `dropped_landmarks` counts landmarks left out of a step because
+    they were not constrained enough."""
 
     variant: str
     method: str
@@ -131,6 +133,8 @@ class OptimizationReport:
     window: int
     fixed_poses: int
     timing_ms: dict[str, float]
+    termination: str = ""
+    dropped_landmarks: int = 0
 
 
 @dataclasses.dataclass(frozen=True)

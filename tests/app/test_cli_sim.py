@@ -51,6 +51,9 @@ def test_sim_writes_the_json_contract(sim_b: dict) -> None:
         assert entry["rmse_cm_median"] > 0
         assert entry["time_ms_median"] > 0
         assert 1 <= entry["iterations_median"] <= montecarlo.MAX_ITERATIONS
+        assert entry["cost_increase_runs"] == 0  # the solver never accepts a cost increase
+        assert 0 <= entry["converged_runs"] <= payload["runs"]
+        assert entry["linearizations_median"] >= entry["iterations_median"] + 1
 
 
 def test_sim_json_matches_the_library_study(sim_b: dict) -> None:

@@ -85,4 +85,4 @@ def test_schur_blocks_equal_the_dense_normal_equations(variant: str, robust: flo
     damped = blocks.damped(0.5)
     np.testing.assert_allclose(np.diagonal(damped.H_rr), 1.5 * np.diagonal(H)[r])
     np.testing.assert_allclose(damped.d_points, 1.5 * np.diagonal(H)[lo:mid])
-    np.testing.assert_allclose(solve_schur_blocks(blocks, problem.layout), solve_schur(H.copy(), g, problem.layout), rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(solve_schur_blocks(blocks, problem.layout).delta, solve_schur(H.copy(), g, problem.layout), rtol=1e-8, atol=1e-12)
