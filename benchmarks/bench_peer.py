@@ -1,0 +1,386 @@
+"""Benchmark: our six variants against gtsam's built-in C++ factors, on identical data.
+
+The peer is what a user could pick instead of this package: the traditional
+parametrization in gtsam, one `Pose3` per camera (camera to world) and one `Point3` per
+point landmark, `GenericProjectionFactorCal3_S2` for every point observation (the anchor
+observations included: for a 3-DoF landmark they carry information), `BetweenFactorPose3`
+for the odometry, `PriorFactorPose3` and `RangeFactorPose3` for the gauge, solved by
+`GaussNewtonOptimizer` with its defaults (multifrontal Cholesky, COLAMD ordering). gtsam
+has no built-in line factor: it is the peer of P-wo, and the PL variants are compared
+against it too (the ratio column).
+
+For every sequence and noise draw (DESIGN §4, run r seeded `(seed, r)`), both sides solve
+the same `ProblemData` in one process, in two regimes:
+
+- equal work: 10 Gauss-Newton iterations each, no convergence test on either side — the
+  speed comparison. gtsam takes every full step; ours keeps its step control (it never
+  accepts a step that raises the cost: it halves or damps, a rejected trial costing one
+  more linearization, column "lin") and stops early only when no step lowers the cost
+  any more (converged to rounding); the table lists such draws;
+- default: each side's default stopping rules, at most 10 iterations — what a user gets.
+
+gtsam's plain Gauss-Newton has no step control: on some draws of sequence a it moves a
+far point behind its cameras and raises IndeterminantLinearSystemException; such draws
+are listed and left out of gtsam's medians.
+
+Time is the solver loop only, the median of --repeats per draw, then the median over
+draws: ours `SolveReport.time_ms` (the initial linearization included), gtsam
+`optimizer.optimize()`. Setup is reported apart: ours `build_problem` + `prepare()`
+(structure caches, kernel compilation), gtsam graph + values + optimizer construction (its
+constructor computes the COLAMD ordering and the initial error). RMSE is the translational
+RMSE of the final camera positions against the truth, in cm, without alignment (the prior
+and the distance prior fix all seven gauge freedoms). Before the tables, each sequence's
+first draw checks that the gtsam graph is the same problem as our P-wo, factor type by
+factor type, at the initial values and at P-wo's solution. They differ by design in one
+respect: P-wo's point lies on its anchor ray (the anchor observation is taken as exact and
+dropped), gtsam's 3-DoF point may leave it, so gtsam's minimum is lower.
+
+    .venv/bin/python benchmarks/bench_peer.py --runs 5
+    .venv/bin/python benchmarks/bench_peer.py --sequence b --runs 2 --repeats 5
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import importlib.metadata  # noqa: E402
+import inspect  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+
+import gtsam  # noqa: E402
+import numpy as np  # noqa: E402
+from gtsam.symbol_shorthand import L, X  # noqa: E402
+
+from backend.eval import montecarlo, sequences  # noqa: E402
+from backend.eval.trajectory import translational_rmse  # noqa: E402
+from backend.optim.problem import VARIANTS, ProblemData, State, build_problem  # noqa: E402
+from backend.optim.solver import optimize  # noqa: E402
+
+MAX_ITERATIONS = 10
+PEER = "gtsam"
+# Ours at equal work: no convergence test (those of these options that `optimize` takes).
+# Its step control stays on: the solver never accepts a step that raises the cost, so
+# without halving or damping it would stop at the first overshooting full step (sequence a
+# does that in its first iterations); a rejected trial costs a linearization, counted in
+# the "lin" column. Once converged to rounding no step lowers the cost and it stops early
+# ("stalled"): the table prints the iterations it did.
+_OURS_EQUAL_WORK: dict[str, float] = {"relative_tolerance": 0.0, "step_tolerance": 0.0}
+OURS_EQUAL_WORK: dict[str, float] = {k: v for k, v in _OURS_EQUAL_WORK.items() if k in inspect.signature(optimize).parameters}
+# gtsam at equal work. Its test `currentError - newError <= absoluteErrorTol` would still fire
+# at a tolerance of 0 as soon as an iteration does not decrease the error (rounding, once
+# converged), so the absolute tolerance is -inf; a relative tolerance of 0 disables that test.
+PEER_EQUAL_WORK: dict[str, float] = {"relative_tolerance": 0.0, "absolute_tolerance": -np.inf}
+
+
+@dataclasses.dataclass(frozen=True)
+class Solve:
+    """One solve of one draw: solver-loop and setup wall time (ms, medians over repeats),
+    iterations, linearizations (residuals and Jacobians evaluated, including the initial
+    one; gtsam evaluates one per iteration plus error-only evaluations), how the solve
+    ended, final cost (`Σ ½|r|²` of the whitened residuals) and translational RMSE of the
+    final camera positions against the truth (cm, no alignment)."""
+
+    time_ms: float
+    setup_ms: float
+    iterations: int
+    linearizations: int
+    termination: str
+    final_cost: float
+    rmse_cm: float
+    failed: str = ""  # why the solve raised (gtsam), empty if it did not
+
+
+@dataclasses.dataclass(frozen=True)
+class PeerGraph:
+    """The gtsam problem: graph, initial values, and the graph's factor indices per factor
+    type ("points", "anchors", "odometry", "prior", "distance_prior")."""
+
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    groups: dict[str, list[int]]
+    n_poses: int
+
+
+def initial_points_world(data: ProblemData) -> np.ndarray:
+    """World positions (P, 3), metres, of the points from our inverse-depth initialization:
+    `X_w = R_a x̂_a / ρ + t_a` in the initial anchor pose `a` (camera to world)."""
+    x_a = data.camera.normalize(data.point_anchor_uv)
+    R_a = data.poses.R_world_camera[data.point_anchor]
+    t_a = data.poses.t_world_camera[data.point_anchor]
+    return np.einsum("pij,pj->pi", R_a, x_a) / data.point_rho[:, None] + t_a
+
+
+def anchor_observations(data: ProblemData) -> np.ndarray:
+    """Mask of the point observations that are their landmark's own left anchor view (P-wo
+    drops them: they are identically zero for an inverse depth)."""
+    obs = data.point_obs
+    return (obs.pose == data.point_anchor[obs.landmark]) & np.all(obs.offset == 0, axis=1)
+
+
+def build_peer_graph(data: ProblemData) -> PeerGraph:
+    """gtsam's traditional-parametrization graph of `data`: `X(i)` = `Pose3` camera to
+    world, `L(p)` = `Point3` in the world frame (metres); factors with gtsam's built-in
+    C++ implementations only."""
+    cam = data.camera
+    if np.any(data.point_obs.offset != 0):
+        raise ValueError("stereo (right image) observations are not supported by the peer graph")
+    graph = gtsam.NonlinearFactorGraph()
+    values = peer_values(data.poses.R_world_camera, data.poses.t_world_camera, initial_points_world(data))
+    groups: dict[str, list[int]] = {"points": [], "anchors": [], "odometry": [], "prior": [], "distance_prior": []}
+
+    K = gtsam.Cal3_S2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy)
+    pixel = gtsam.noiseModel.Isotropic.Sigma(2, data.sigma_px)
+    obs = data.point_obs
+    is_anchor = anchor_observations(data)
+    for m in range(len(obs)):
+        groups["anchors" if is_anchor[m] else "points"].append(graph.size())
+        graph.add(gtsam.GenericProjectionFactorCal3_S2(obs.uv[m], pixel, X(int(obs.pose[m])), L(int(obs.landmark[m])), K))
+
+    od = data.odometry
+    if od is not None:
+        # gtsam's Pose3 tangent order is (rotation, translation).
+        model = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, od.sigma_rot), np.full(3, od.sigma_pos)])
+        for i, j, R_ij, t_ij in zip(od.i, od.j, od.R_i_j, od.t_i_j):
+            groups["odometry"].append(graph.size())
+            graph.add(gtsam.BetweenFactorPose3(X(int(i)), X(int(j)), gtsam.Pose3(gtsam.Rot3(R_ij), t_ij), model))
+    pr = data.prior
+    if pr is not None:
+        model = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, pr.sigma_rot), np.full(3, pr.sigma_pos)])
+        for k, R_p, t_p in zip(pr.index, pr.R_world_camera, pr.t_world_camera):
+            groups["prior"].append(graph.size())
+            graph.add(gtsam.PriorFactorPose3(X(int(k)), gtsam.Pose3(gtsam.Rot3(R_p), t_p), model))
+    dp = data.distance_prior
+    if dp is not None:
+        model = gtsam.noiseModel.Isotropic.Sigma(1, dp.sigma)
+        for i, j, dist in zip(dp.i, dp.j, dp.distance):
+            groups["distance_prior"].append(graph.size())
+            graph.add(gtsam.RangeFactorPose3(X(int(i)), X(int(j)), float(dist), model))
+    return PeerGraph(graph, values, groups, len(data.poses.t_world_camera))
+
+
+def peer_values(R_world_camera: np.ndarray, t_world_camera: np.ndarray, p_world: np.ndarray) -> gtsam.Values:
+    """gtsam values: `X(i)` = camera-to-world pose (N, 3, 3) / (N, 3) metres, `L(p)` = world
+    point (P, 3) metres."""
+    values = gtsam.Values()
+    for i, (R, t) in enumerate(zip(R_world_camera, t_world_camera)):
+        values.insert(X(i), gtsam.Pose3(gtsam.Rot3(R), t))
+    for p, X_w in enumerate(p_world):
+        values.insert(L(p), X_w)
+    return values
+
+
+def peer_params(*, equal_work: bool) -> gtsam.GaussNewtonParams:
+    """Gauss-Newton parameters: gtsam's defaults (linear solver, ordering, tolerances) with
+    at most 10 iterations; `equal_work` disables every convergence test."""
+    params = gtsam.GaussNewtonParams()
+    params.setMaxIterations(MAX_ITERATIONS)
+    if equal_work:
+        params.setRelativeErrorTol(PEER_EQUAL_WORK["relative_tolerance"])
+        params.setAbsoluteErrorTol(PEER_EQUAL_WORK["absolute_tolerance"])
+    return params
+
+
+def peer_positions(result: gtsam.Values, n_poses: int) -> np.ndarray:
+    """Camera positions (N, 3) in the world frame, metres."""
+    return np.array([result.atPose3(X(i)).translation() for i in range(n_poses)])
+
+
+def solve_peer(data: ProblemData, world: sequences.World, *, equal_work: bool, repeats: int) -> Solve:
+    """Build and solve the gtsam graph `repeats` times; medians of the times. A solve that
+    raises (gtsam's plain Gauss-Newton takes full steps: a far point can be moved behind its
+    cameras, and its system becomes indeterminate) is returned with `failed` set and NaNs."""
+    times, setups = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        peer = build_peer_graph(data)
+        optimizer = gtsam.GaussNewtonOptimizer(peer.graph, peer.values, peer_params(equal_work=equal_work))
+        t1 = time.perf_counter()
+        try:
+            result = optimizer.optimize()
+        except RuntimeError as e:  # gtsam's IndeterminantLinearSystemException
+            why = str(e).strip().splitlines()[0] + " " + next((line for line in str(e).splitlines() if "Symbol" in line), "").strip()
+            return Solve(np.nan, 1e3 * (t1 - t0), int(optimizer.iterations()), 0, "", np.nan, np.nan, failed=why)
+        t2 = time.perf_counter()
+        setups.append(1e3 * (t1 - t0))
+        times.append(1e3 * (t2 - t1))
+    rmse = 100.0 * translational_rmse(peer_positions(result, peer.n_poses), world.t_world_camera)
+    iterations = int(optimizer.iterations())
+    return Solve(float(np.median(times)), float(np.median(setups)), iterations, iterations, "", float(peer.graph.error(result)), rmse)
+
+
+def solve_ours(data: ProblemData, world: sequences.World, variant: str, *, equal_work: bool, repeats: int) -> Solve:
+    """Build, prepare and solve one variant `repeats` times; medians of the times."""
+    options = OURS_EQUAL_WORK if equal_work else {}
+    times, setups = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        problem = build_problem(data, variant)
+        problem.prepare()
+        setups.append(1e3 * (time.perf_counter() - t0))
+        state, report = optimize(problem, method="gn", max_iterations=MAX_ITERATIONS, **options)
+        times.append(report.time_ms)
+    rmse = 100.0 * translational_rmse(state.poses.t_world_camera, world.t_world_camera)
+    linearizations = getattr(report, "linearizations", 0) or report.iterations + 1
+    return Solve(float(np.median(times)), float(np.median(setups)), report.iterations, linearizations, getattr(report, "termination", ""), report.final_cost, rmse)
+
+
+@dataclasses.dataclass(frozen=True)
+class CostCheck:
+    """Costs `Σ ½|r|²` (whitened) per factor type of ours (P-wo) and of gtsam's graph at
+    the same state. "anchors" are the anchor observations, which P-wo drops (zero wherever
+    the point lies on its anchor ray, as every P-wo state does)."""
+
+    ours: dict[str, float]
+    peer: dict[str, float]
+
+
+def cost_check(data: ProblemData) -> tuple[CostCheck, CostCheck, int]:
+    """Evaluate both problems at the same states, factor type by factor type: the initial
+    values, and the state P-wo converges to (its points mapped to world points). Also
+    returns the number of point observations."""
+    problem = build_problem(data, "P-wo")
+    peer = build_peer_graph(data)
+
+    def at(state: State) -> CostCheck:
+        costs = problem.linearize(state).costs
+        values = peer_values(state.poses.R_world_camera, state.poses.t_world_camera, problem.point_positions(state))
+        ours = {name: float(costs.get(name, 0.0)) for name in peer.groups}
+        theirs = {name: float(sum(peer.graph.at(k).error(values) for k in idx)) for name, idx in peer.groups.items()}
+        return CostCheck(ours, theirs)
+
+    solved, _ = optimize(problem, method="gn", max_iterations=MAX_ITERATIONS)
+    return at(problem.initial_state()), at(solved), len(data.point_obs)
+
+
+def threading_note() -> str:
+    """Which threading runtimes the loaded gtsam uses (from the process's mapped libraries)."""
+    with open("/proc/self/maps") as f:
+        maps = f.read()
+    found = [name for name in ("libtbb", "libgomp", "libomp", "libiomp") if name in maps]
+    if not found:
+        return "gtsam: no TBB/OpenMP loaded (single-threaded)"
+    return f"gtsam: {', '.join(found)} loaded (may run multi-threaded)"
+
+
+def machine_line() -> str:
+    """Python, processor, CPU count, BLAS threads, gtsam version and threading, and the
+    1-minute load average (timings are only comparable on an otherwise idle machine)."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    return (
+        f"# python {platform.python_version()}, {cpu}, {os.cpu_count()} cpus, "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
+        f"gtsam {importlib.metadata.version('gtsam')}; {threading_note()}; load average {os.getloadavg()[0]:.2f}"
+    )
+
+
+def _median(values: Sequence[float]) -> float:
+    """Median over the finite values (NaN: a failed solve), NaN if none."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if len(v) else float("nan")
+
+
+def _range(values: Sequence[int]) -> str:
+    lo, hi = min(values), max(values)
+    return f"{lo}" if lo == hi else f"{lo}-{hi}"
+
+
+def print_table(title: str, solves: dict[str, list[Solve]]) -> None:
+    """Medians over draws per solver (iterations and linearizations: their range), failed
+    solves left out; the ratio is time / gtsam's time. Solves that stopped before 10
+    iterations or failed are listed with the reason."""
+    print(title)
+    print(f"  {'variant':7s} {'time ms':>9s} {'ms/iter':>8s} {'iters':>6s} {'lin':>6s} {'setup ms':>9s} {'RMSE cm':>8s} {'vs gtsam':>9s}")
+    peer_time = _median([s.time_ms for s in solves[PEER]])
+    for name, rows in solves.items():
+        ok = [s for s in rows if not s.failed]
+        if not ok:
+            print(f"  {name:7s} {'failed on every draw':>40s}")
+            continue
+        t = _median([s.time_ms for s in ok])
+        per_iter = _median([s.time_ms / max(s.iterations, 1) for s in ok])
+        print(
+            f"  {name:7s} {t:9.2f} {per_iter:8.3f} {_range([s.iterations for s in ok]):>6s} "
+            f"{_range([s.linearizations for s in ok]):>6s} {_median([s.setup_ms for s in ok]):9.2f} "
+            f"{_median([s.rmse_cm for s in ok]):8.3f} {t / peer_time:8.2f}x"
+        )
+    notes: dict[tuple[str, str], list[int]] = {}
+    for name, rows in solves.items():
+        for s in rows:
+            if s.failed:
+                notes.setdefault((name, f"FAILED in iteration {s.iterations + 1}: {s.failed}"), []).append(s.iterations)
+            elif s.iterations < MAX_ITERATIONS:
+                notes.setdefault((name, f"stopped: {s.termination or 'its convergence test held'}"), []).append(s.iterations)
+    for (name, why), its in notes.items():
+        verb = "" if why.startswith("FAILED") else f" after {_range(its)} iterations"
+        print(f"    {name}: {len(its)} of {len(solves[name])} draws{verb}, {why}")
+
+
+def print_cost_check(initial: CostCheck, solved: CostCheck) -> None:
+    """Per factor type: ours (P-wo) vs gtsam at the initial values and at P-wo's solution."""
+    print("  same problem? Σ ½|r|² (whitened) per factor type, run 0, ours P-wo vs the gtsam graph at the same state:")
+    print(f"    {'factor':15s} {'initial: ours':>14s} {'gtsam':>14s} {'gtsam/ours':>11s}   {'P-wo solution: ours':>20s} {'gtsam':>12s} {'gtsam/ours':>11s}")
+
+    def cols(o: float, p: float, width: int) -> str:
+        ratio = f"{p / o:11.6f}" if o > 0 else f"{'-':>11s}"
+        return f"{o:{width}.6g} {p:{width - 2 if width > 14 else width}.6g} {ratio}"
+
+    for name in initial.peer:
+        print(f"    {name:15s} {cols(initial.ours[name], initial.peer[name], 14)}   {cols(solved.ours[name], solved.peer[name], 20)}")
+    tot = lambda c: (sum(c.ours.values()), sum(c.peer.values()))  # noqa: E731
+    print(f"    {'total':15s} {cols(*tot(initial), 14)}   {cols(*tot(solved), 20)}")
+
+
+def run_sequence(seq: str, *, runs: int, repeats: int, seed: int) -> None:
+    """Both regimes on `runs` draws of sequence `seq`; prints the cost check and two tables."""
+    world = sequences.make_world(seq, seed=seed)
+    names = [*VARIANTS, PEER]
+    solves: dict[str, dict[str, list[Solve]]] = {regime: {name: [] for name in names} for regime in ("equal", "default")}
+    for r in range(runs):
+        data = montecarlo.make_problem_data(world, np.random.default_rng([seed, r]))
+        if r == 0:
+            initial, solved, n_obs = cost_check(data)
+        for regime, by_name in solves.items():
+            equal_work = regime == "equal"
+            for variant in VARIANTS:
+                by_name[variant].append(solve_ours(data, world, variant, equal_work=equal_work, repeats=repeats))
+            by_name[PEER].append(solve_peer(data, world, equal_work=equal_work, repeats=repeats))
+    n_points = len(data.point_anchor)
+    print(f"\n## sequence {seq}: {len(world.t_world_camera)} cameras, {n_points} points, {n_obs} point observations; {runs} draws (seed {seed}), median of {repeats} repeats per draw")
+    print_cost_check(initial, solved)
+    equal = solves["equal"]
+    print(
+        f"  final cost after 10 iterations (median): ours P-wo {_median([s.final_cost for s in equal['P-wo']]):.6g}, "
+        f"gtsam {_median([s.final_cost for s in equal[PEER]]):.6g} (gtsam's points are 3-DoF: they may leave their anchor rays)"
+    )
+    print_table("equal work: 10 Gauss-Newton iterations each", equal)
+    print_table("default: each side's default stopping rules, at most 10 iterations", solves["default"])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sequence", choices=("a", "b"), action="append", help="repeatable; default: both")
+    parser.add_argument("--runs", type=int, default=5, help="noise draws per sequence")
+    parser.add_argument("--repeats", type=int, default=3, help="timing repeats per draw (median)")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    if args.runs < 1 or args.repeats < 1:
+        parser.error("--runs and --repeats must be at least 1")
+    print(machine_line())
+    for seq in args.sequence or ["a", "b"]:
+        run_sequence(seq, runs=args.runs, repeats=args.repeats, seed=args.seed)
+
+
+if __name__ == "__main__":
+    main()
