@@ -225,7 +225,7 @@ def optimize(
     step_tolerance: float = 1e-10,
     max_step_halvings: int = 4,
     initial_lambda: float = 1e-4,
-    max_damping_increases: int = 10,
+    max_damping_increases: int = 6,
 ) -> tuple[State, SolveReport]:
     """Minimize the problem's cost from `state` (its initial values by default). A step
     that raises the cost is never accepted.
@@ -242,10 +242,10 @@ def optimize(
     An iteration is one linearization and its accepted step; at most `max_iterations`. The
     solve has converged when the accepted step changed the cost by less than
     `relative_tolerance` (relative), when the largest component of the step actually
-    applied is below `step_tolerance`, or when no trial step lowers the cost and the
-    linear model predicts a decrease below `relative_tolerance` (the cost is at its
-    minimum to working precision). If no step lowers the cost although the model predicts
-    a decrease, the solve stops at the current state and reports itself stalled (not
+    applied is below `step_tolerance`, or when the linear model predicts a decrease below
+    `relative_tolerance` (relative; the cost is at its minimum to working precision: no
+    trial step is made). If no step lowers the cost although the model predicts a
+    decrease, the solve stops at the current state and reports itself stalled (not
     converged). Landmarks whose own block of H is singular are left out of the step
     (:func:`solve_schur_blocks`) and counted in the report.
 
@@ -309,6 +309,9 @@ def optimize(
             dropped, how = max(dropped, sol.n_dropped), sol.linear_solver
             # For the Gauss-Newton step H δ = g the model predicts a decrease of ½ δ·g.
             predicted = 0.5 * float(sol.delta @ blocks.g) if np.all(np.isfinite(sol.delta)) else np.inf
+            if 0.0 <= predicted <= relative_tolerance * max(costs[-1], 1e-300):
+                termination = CONVERGED_MODEL  # nothing left to gain: no trial steps
+                break
             step = 1.0
             for _halving in range(max_step_halvings + 1):
                 if trial(step * sol.delta):
