@@ -197,17 +197,70 @@ def line_reprojection(
 # --------------------------------------------------------------------------- -r residuals
 
 
-def point_to_plane(
-    p_world: np.ndarray, J_world: Blocks, n_world: np.ndarray, d_world: np.ndarray, B_plane: np.ndarray
-) -> tuple[np.ndarray, Blocks]:
-    """Signed distance `n·X_w + d` (metres), (M, 1), with X_w's blocks chained and "plane"."""
-    residual = (np.sum(n_world * p_world, axis=-1) + d_world)[:, None]
-    blocks = {name: n_world[:, None, :] @ J for name, J in J_world.items()}
-    J_plane = np.empty((p_world.shape[0], 1, 3))
-    J_plane[:, 0, :2] = _mv(_transpose(B_plane), p_world)
-    J_plane[:, 0, 2] = 1.0
-    blocks["plane"] = J_plane
-    return residual, blocks
+def point_plane_relative(
+    x_anchor: np.ndarray,
+    rho: np.ndarray,
+    R_world_anchor: np.ndarray,
+    t_world_anchor: np.ndarray,
+    n_world: np.ndarray,
+    d_world: np.ndarray,
+    B_plane: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Scale-safe point-to-plane residual (DESIGN §3, -r), (K, 1), dimensionless:
+    `r = (n·X_w + d) / |n·t_a + d|`, the signed distance of `X_w = R_a x̂_a / ρ + t_a` to the
+    world plane (n, d) as a fraction of the anchor camera's distance to it (the caller
+    whitens by 1/σ_rel). Invariant to scaling the map (t, 1/ρ, d all times s > 0).
+
+    x_anchor (K, 3) normalized anchor ray, rho (K,) 1/m, anchor pose (K, 3, 3) / (K, 3),
+    plane (K, 3) / (K,) with tangent basis B_plane (K, 3, 2). With `e = n·X_w + d`,
+    `q = n·t_a + d`, `p = x̂_a / ρ`, `n_a = R_aᵀ n`: `dr = (de - r sign(q) dq) / |q|`,
+    `∂e/∂δθ_a = (p × n_a)ᵀ`, `∂e/∂δt_a = ∂q/∂δt_a = nᵀ` (q does not depend on δθ_a),
+    `∂e/∂ρ = -(n_a·x̂_a)/ρ²`, `∂e/∂δn = X_wᵀ B`, `∂q/∂δn = t_aᵀ B`, `∂e/∂δd = ∂q/∂δd = 1`.
+    Returns the residual and its Jacobian (K, 1, 10) w.r.t. [anchor (6) | ρ (1) | plane (3)].
+    """
+    K = len(x_anchor)
+    residual = np.empty((K, 1))
+    J = np.empty((K, 1, 10))
+    kernels.point_plane_relative(*(np.ascontiguousarray(a, dtype=float) for a in (x_anchor, rho, R_world_anchor, t_world_anchor, n_world, d_world, B_plane)), residual, J)
+    return residual, J
+
+
+def line_plane_relative(
+    m_world: np.ndarray,
+    v_world: np.ndarray,
+    J_mv: np.ndarray,
+    landmark: np.ndarray,
+    x_start: np.ndarray,
+    x_end: np.ndarray,
+    R_world_anchor: np.ndarray,
+    t_world_anchor: np.ndarray,
+    n_world: np.ndarray,
+    d_world: np.ndarray,
+    B_plane: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Scale-safe line-to-plane residuals (DESIGN §3, -r), (K, 2), dimensionless:
+    `r_j = (n·P_j + d) / |n·t_a + d|` for P_start, P_end the points of the line nearest to
+    the anchor endpoint rays `t_a + λ w`, `w = R_a x̂` (:func:`line_point_nearest_ray`).
+
+    m_world, v_world (L, 3) are the lines' world Plücker coordinates, J_mv (L, 6, D) the
+    Jacobian of the stacked (m, v) w.r.t. the line's own variables (orthonormal:
+    :func:`line_world_orthonormal`, D = 4); pair k uses line `landmark[k]`, its anchor
+    pose (K, 3, 3) / (K, 3), normalized anchor endpoints x_start, x_end (K, 3) and the
+    world plane (K, 3) / (K,) with tangent basis B_plane (K, 3, 2). Chain rule as in
+    :func:`point_plane_relative` with `de = nᵀ dP` (+ the plane terms `P_jᵀ B δn + δd`):
+    `∂P/∂δθ_a = ∂P/∂w (-R_a [x̂]_×)`, `∂P/∂δt_a = ∂P/∂c`, `∂P/∂line = [∂P/∂m, ∂P/∂v] J_mv`,
+    and `∂q/∂δt_a = nᵀ`, `∂q/∂δn = t_aᵀ B`, `∂q/∂δd = 1`.
+    Returns the residual and its Jacobian (K, 2, 6 + D + 3) w.r.t. [anchor | line | plane].
+    """
+    K = len(landmark)
+    D = J_mv.shape[2]
+    residual = np.empty((K, 2))
+    J = np.empty((K, 2, 6 + D + 3))
+    kernels.line_plane_relative(
+        *(np.ascontiguousarray(a, dtype=float) for a in (m_world, v_world, J_mv)), np.ascontiguousarray(landmark, dtype=np.int64),
+        *(np.ascontiguousarray(a, dtype=float) for a in (x_start, x_end, R_world_anchor, t_world_anchor, n_world, d_world, B_plane)), residual, J,
+    )
+    return residual, J
 
 
 def line_point_nearest_ray(

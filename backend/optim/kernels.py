@@ -436,3 +436,139 @@ def relative_pose(R_world_camera, t_world_camera, i_index, j_index, R_i_j, t_i_j
         J[m, 3, 1], J[m, 3, 2] = -p2, p1
         J[m, 4, 0], J[m, 4, 2] = p2, -p0
         J[m, 5, 0], J[m, 5, 1] = -p1, p0
+
+
+@numba.njit(cache=True, nogil=True)
+def point_plane_relative(x_anchor, rho, R_world_anchor, t_world_anchor, n_world, d_world, B_plane, residual, J):  # noqa: ANN001
+    """Scale-safe point-to-plane residual per (point, plane) pair: residual (K, 1) =
+    `(n·X_w + d) / |n·t_a + d|` with `X_w = R_a x̂_a / ρ + t_a`, J (K, 1, 10) w.r.t.
+    [anchor (δθ, δt) | ρ | plane (δn, δd)]. Formulas in
+    :func:`backend.optim.factors.point_plane_relative`."""
+    for k in range(x_anchor.shape[0]):
+        R = R_world_anchor[k]
+        x0, x1, x2 = x_anchor[k, 0], x_anchor[k, 1], x_anchor[k, 2]
+        n0, n1, n2 = n_world[k, 0], n_world[k, 1], n_world[k, 2]
+        t0, t1, t2 = t_world_anchor[k, 0], t_world_anchor[k, 1], t_world_anchor[k, 2]
+        ir = 1.0 / rho[k]
+        # The normal in the anchor frame, nc = R_aᵀ n, and the anchor-frame point p = x̂ / ρ.
+        c0 = R[0, 0] * n0 + R[1, 0] * n1 + R[2, 0] * n2
+        c1 = R[0, 1] * n0 + R[1, 1] * n1 + R[2, 1] * n2
+        c2 = R[0, 2] * n0 + R[1, 2] * n1 + R[2, 2] * n2
+        p0, p1, p2 = x0 * ir, x1 * ir, x2 * ir
+        q = n0 * t0 + n1 * t1 + n2 * t2 + d_world[k]
+        e = c0 * p0 + c1 * p1 + c2 * p2 + q  # n·X_w + d = n·R_a p + q
+        sq = 1.0 if q >= 0.0 else -1.0
+        iq = 1.0 / (sq * q)
+        r = e * iq
+        residual[k, 0] = r
+        rs = r * sq  # dr = (de - r sign(q) dq) / |q|
+        # ∂e/∂δθ = -nᵀ R_a [p]_× = (p × nc)ᵀ; q does not depend on the rotation.
+        a0, a1, a2 = _cross3(p0, p1, p2, c0, c1, c2)
+        J[k, 0, 0] = a0 * iq
+        J[k, 0, 1] = a1 * iq
+        J[k, 0, 2] = a2 * iq
+        # ∂e/∂δt = ∂q/∂δt = nᵀ.
+        f = (1.0 - rs) * iq
+        J[k, 0, 3] = n0 * f
+        J[k, 0, 4] = n1 * f
+        J[k, 0, 5] = n2 * f
+        # ∂e/∂ρ = -(nc·x̂) / ρ².
+        J[k, 0, 6] = -(c0 * x0 + c1 * x1 + c2 * x2) * ir * ir * iq
+        # Plane: ∂e/∂δn = X_wᵀ B, ∂q/∂δn = t_aᵀ B, ∂e/∂δd = ∂q/∂δd = 1.
+        X0 = R[0, 0] * p0 + R[0, 1] * p1 + R[0, 2] * p2 + t0
+        X1 = R[1, 0] * p0 + R[1, 1] * p1 + R[1, 2] * p2 + t1
+        X2 = R[2, 0] * p0 + R[2, 1] * p1 + R[2, 2] * p2 + t2
+        for b in range(2):
+            B0, B1, B2 = B_plane[k, 0, b], B_plane[k, 1, b], B_plane[k, 2, b]
+            J[k, 0, 7 + b] = ((X0 - rs * t0) * B0 + (X1 - rs * t1) * B1 + (X2 - rs * t2) * B2) * iq
+        J[k, 0, 9] = f
+
+
+@numba.njit(cache=True, nogil=True)
+def line_plane_relative(m_world_l, v_world_l, J_mv_l, landmark, x_start, x_end, R_world_anchor, t_world_anchor, n_world, d_world, B_plane, residual, J):  # noqa: ANN001
+    """Scale-safe line-to-plane residuals per (line, plane) pair: residual (K, 2) =
+    `(n·P + d) / |n·t_a + d|` for P the points of line `landmark[k]` (world Plücker (m, v)
+    (L, 3), J_mv_l (L, 6, D) the Jacobian of the stacked (m, v)) nearest to the anchor rays
+    `t_a + λ R_a x̂` of the segment's start and end; J (K, 2, 6 + D + 3) w.r.t. [anchor
+    (δθ, δt) | line | plane (δn, δd)]. Formulas in :func:`backend.optim.factors.line_plane_relative`."""
+    D = J_mv_l.shape[2]
+    g = np.empty(6)  # ∂(n·P)/∂(m, v)
+    for k in range(landmark.shape[0]):
+        lm = landmark[k]
+        R = R_world_anchor[k]
+        n0, n1, n2 = n_world[k, 0], n_world[k, 1], n_world[k, 2]
+        t0, t1, t2 = t_world_anchor[k, 0], t_world_anchor[k, 1], t_world_anchor[k, 2]
+        m0, m1, m2 = m_world_l[lm, 0], m_world_l[lm, 1], m_world_l[lm, 2]
+        v0, v1, v2 = v_world_l[lm, 0], v_world_l[lm, 1], v_world_l[lm, 2]
+        q = n0 * t0 + n1 * t1 + n2 * t2 + d_world[k]
+        sq = 1.0 if q >= 0.0 else -1.0
+        iq = 1.0 / (sq * q)
+        a = v0 * v0 + v1 * v1 + v2 * v2
+        ia = 1.0 / a
+        vm0, vm1, vm2 = _cross3(v0, v1, v2, m0, m1, m2)
+        P00, P01, P02 = vm0 * ia, vm1 * ia, vm2 * ia  # the line's point nearest the origin
+        r00, r01, r02 = P00 - t0, P01 - t1, P02 - t2
+        nv = n0 * v0 + n1 * v1 + n2 * v2
+        dd = v0 * r00 + v1 * r01 + v2 * r02
+        for s in range(2):
+            if s == 0:
+                x0, x1, x2 = x_start[k, 0], x_start[k, 1], x_start[k, 2]
+            else:
+                x0, x1, x2 = x_end[k, 0], x_end[k, 1], x_end[k, 2]
+            w0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2  # ray direction R_a x̂
+            w1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
+            w2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
+            b = v0 * w0 + v1 * w1 + v2 * w2
+            cc = w0 * w0 + w1 * w1 + w2 * w2
+            e = w0 * r00 + w1 * r01 + w2 * r02
+            iD = 1.0 / (a * cc - b * b)
+            mu = (b * e - cc * dd) * iD
+            P0, P1, P2 = P00 + mu * v0, P01 + mu * v1, P02 + mu * v2
+            r = (n0 * P0 + n1 * P1 + n2 * P2 + d_world[k]) * iq
+            residual[k, s] = r
+            rs = r * sq
+            # ∂μ/∂r0, ∂μ/∂v, ∂μ/∂w (see factors.line_point_nearest_ray).
+            u0, u1, u2 = (b * w0 - cc * v0) * iD, (b * w1 - cc * v1) * iD, (b * w2 - cc * v2) * iD
+            f1 = 2.0 * mu * cc
+            f2 = 2.0 * mu * b
+            dv0 = (e * w0 - cc * r00 - f1 * v0 + f2 * w0) * iD
+            dv1 = (e * w1 - cc * r01 - f1 * v1 + f2 * w1) * iD
+            dv2 = (e * w2 - cc * r02 - f1 * v2 + f2 * w2) * iD
+            h1 = 2.0 * mu * a
+            dw0 = (e * v0 + b * r00 - 2.0 * dd * w0 - h1 * w0 + f2 * v0) * iD
+            dw1 = (e * v1 + b * r01 - 2.0 * dd * w1 - h1 * w1 + f2 * v1) * iD
+            dw2 = (e * v2 + b * r02 - 2.0 * dd * w2 - h1 * w2 + f2 * v2) * iD
+            # y = nᵀ (I + v ∂μ/∂r0ᵀ): the gradient of n·P w.r.t. p0.
+            y0, y1, y2 = n0 + nv * u0, n1 + nv * u1, n2 + nv * u2
+            # ∂(n·P)/∂m = (y × v)ᵀ / |v|².
+            gm0, gm1, gm2 = _cross3(y0, y1, y2, v0, v1, v2)
+            g[0], g[1], g[2] = gm0 * ia, gm1 * ia, gm2 * ia
+            # ∂(n·P)/∂v = -(y × m)/|v|² - 2 (y·(v × m)) v/|v|⁴ + μ n + (n·v) ∂μ/∂v.
+            ym0, ym1, ym2 = _cross3(y0, y1, y2, m0, m1, m2)
+            yv = 2.0 * (y0 * vm0 + y1 * vm1 + y2 * vm2) * ia * ia
+            g[3] = -ym0 * ia - yv * v0 + mu * n0 + nv * dv0
+            g[4] = -ym1 * ia - yv * v1 + mu * n1 + nv * dv1
+            g[5] = -ym2 * ia - yv * v2 + mu * n2 + nv * dv2
+            # Anchor rotation through w = R_a x̂: (x̂ × R_aᵀ g_w)ᵀ with g_w = (n·v) ∂μ/∂w.
+            gw0, gw1, gw2 = nv * dw0, nv * dw1, nv * dw2
+            h0 = R[0, 0] * gw0 + R[1, 0] * gw1 + R[2, 0] * gw2
+            h1_ = R[0, 1] * gw0 + R[1, 1] * gw1 + R[2, 1] * gw2
+            h2 = R[0, 2] * gw0 + R[1, 2] * gw1 + R[2, 2] * gw2
+            a0, a1, a2 = _cross3(x0, x1, x2, h0, h1_, h2)
+            J[k, s, 0] = a0 * iq
+            J[k, s, 1] = a1 * iq
+            J[k, s, 2] = a2 * iq
+            # Anchor position: through the ray origin c = t_a, ∂(n·P)/∂c = -(n·v) ∂μ/∂r0,
+            # and through q (∂q/∂δt = nᵀ).
+            J[k, s, 3] = (-nv * u0 - rs * n0) * iq
+            J[k, s, 4] = (-nv * u1 - rs * n1) * iq
+            J[k, s, 5] = (-nv * u2 - rs * n2) * iq
+            for c in range(D):
+                acc = 0.0
+                for j in range(6):
+                    acc += g[j] * J_mv_l[lm, j, c]
+                J[k, s, 6 + c] = acc * iq
+            for bb in range(2):
+                B0, B1, B2 = B_plane[k, 0, bb], B_plane[k, 1, bb], B_plane[k, 2, bb]
+                J[k, s, 6 + D + bb] = ((P0 - rs * t0) * B0 + (P1 - rs * t1) * B1 + (P2 - rs * t2) * B2) * iq
+            J[k, s, 6 + D + 2] = (1.0 - rs) * iq
