@@ -3,8 +3,9 @@
 The landmark variables (inverse depths, orthonormal lines) form a block-diagonal part of
 H = JᵀJ (no factor joins two landmarks); they are eliminated first and the reduced system
 over cameras and planes is formed over each landmark's own rows and solved by Cholesky:
-banded (after reverse Cuthill-McKee) with the planes as a dense border where the cameras'
-coupling is a narrow band, dense otherwise (:mod:`backend.optim.sparse_schur`). This is the
+an envelope (profile) Cholesky of the reordered camera block with the planes as a dense
+border where the cameras see only their neighbours (sequence a's circle), dense otherwise
+(:mod:`backend.optim.sparse_schur`). This is the
 structure the paper's efficiency argument rests on: -w has no landmark variables and a
 smaller reduced system.
 
@@ -79,7 +80,7 @@ class SchurSolution:
     """A step δ (n_params,) and the landmarks left out of it: points (indices into the
     layout's point columns) and lines whose own block of H is singular or not finite (not
     observed enough in this linearization), held at their value (δ = 0) for this step.
-    `linear_solver`: "dense" or "band" (the reduced system's factorization)."""
+    `linear_solver`: "dense" or "envelope" (the reduced system's factorization)."""
 
     delta: np.ndarray
     dropped_points: np.ndarray
@@ -92,20 +93,21 @@ class SchurSolution:
 
 
 def _solve_reduced(S: np.ndarray, b: np.ndarray, n_cameras: int, cache: dict | None) -> tuple[np.ndarray, str]:
-    """Solve the reduced camera | plane system: banded Cholesky of the camera block with a
-    dense plane border where the reordered band is narrow enough, dense Cholesky otherwise."""
+    """Solve the reduced camera | plane system: envelope Cholesky of the reordered camera
+    block with a dense plane border where its estimated work is well below the dense
+    factorization's (:func:`sparse_schur.envelope_pays`), dense Cholesky otherwise. The
+    plan (order, panels, workspace) depends on the structure only and is kept in `cache`."""
     if n_cameras >= 60:  # below ten cameras the dense factorization is as fast
-        key = ("band_order", S.shape[0], n_cameras)
-        order = cache.get(key) if cache is not None else None
-        if order is None:
-            order = sparse_schur.camera_band_order(S[:n_cameras, :n_cameras])
+        key = ("envelope_plan", S.shape[0], n_cameras)
+        plan = cache.get(key) if cache is not None else None
+        if plan is None:
+            plan = sparse_schur.envelope_plan(S[:n_cameras, :n_cameras], S.shape[0] - n_cameras)
             if cache is not None:
-                cache[key] = order
-        perm, kd = order
-        if kd < sparse_schur.BAND_FRACTION * n_cameras:
-            x = sparse_schur.solve_bordered_band(S, b, n_cameras, perm, kd)
+                cache[key] = plan
+        if sparse_schur.envelope_pays(plan, S.shape[0]):
+            x = sparse_schur.solve_bordered_envelope(S, b, n_cameras, plan)
             if x is not None:
-                return x, "band"
+                return x, "envelope"
     return _dense_solve(S, b), "dense"
 
 
@@ -116,7 +118,7 @@ def solve_schur_blocks(ne: NormalBlocks, layout: Layout, *, cache: dict | None =
     (δ = 0, no contribution to the reduced system) and reported, so that one degenerate
     landmark cannot spoil the step of all others. `ne.H_rr` is used as workspace: its
     contents are undefined afterwards. `cache` (the problem's) keeps the reduced system's
-    band ordering between iterations."""
+    envelope plan (order, panels, workspace) between iterations."""
     n = layout.n_params
     lo, mid, hi = layout.group_start["points"], layout.group_start["lines"], layout.group_start["planes"]
     n_cameras = layout.group_size["cameras"]
