@@ -70,22 +70,25 @@ def test_a_degenerate_landmark_is_left_out_and_reported(data_b: ProblemData) -> 
 
 
 def test_gauss_newton_never_accepts_a_cost_increase() -> None:
-    """Study run 2 of sequence b, P-wo: plain Gauss-Newton (every full step taken) raises the
-    cost on the way; the solver shortens that step instead and its costs never increase."""
-    data = montecarlo.make_problem_data(sequences.make_world("b"), np.random.default_rng([0, 2]))
-    problem = build_problem(data, "P-wo")
+    """Sequence b with initial poses off by 5° and 50 cm per axis, PL-wo: plain Gauss-Newton
+    (every full step taken) raises the cost on the way (2.4e4 -> 4.3e4 at its fifth step);
+    the solver shortens or damps that step instead and its costs never increase."""
+    noise = montecarlo.NoiseModel(pixel=1.0, rotation_rad=np.deg2rad(5.0), position_m=0.5)
+    data = montecarlo.make_problem_data(sequences.make_world("b"), np.random.default_rng([0, 3]), noise=noise)
+    problem = build_problem(data, "PL-wo")
     state = problem.initial_state()
     plain = [problem.linearize(state).cost]
     for _ in range(10):
         lin = problem.linearize(state)
         state = problem.retract(state, solve_schur_blocks(lin.normal_blocks(problem.layout), problem.layout).delta)
         plain.append(problem.linearize(state).cost)
-    assert any(b > a for a, b in zip(plain, plain[1:])), "plain GN should overshoot here"
+    assert any(b > 1.5 * a for a, b in zip(plain, plain[1:])), "plain GN should overshoot here"
     state, report = optimize(problem)
     assert report.rejected_steps >= 1
     assert report.linearizations > report.iterations + 1
     assert all(b <= a for a, b in zip(report.costs, report.costs[1:]))
-    assert report.final_cost <= min(plain) * (1 + 1e-9)
+    assert report.final_cost < 1e-6 * report.initial_cost
+    assert report.final_cost < 1.01 * min(plain)
     assert problem.linearize(state).cost == pytest.approx(report.final_cost)
 
 
