@@ -179,6 +179,10 @@ METHODS: tuple[str, ...] = ("gn", "lm")
 CONVERGED_COST = "converged: relative cost change below tolerance"
 CONVERGED_STEP = "converged: step below tolerance"
 CONVERGED_MODEL = "converged: no decrease left to gain (predicted decrease below tolerance)"
+CONVERGED_ROUNDING = "converged: the full step changes the cost only at rounding level"
+# A full step whose cost change is below this (relative) is at the minimum to rounding: the
+# cost cannot be lowered meaningfully, and shortening or damping it would only spend time.
+ROUNDING_RELATIVE = 1e-12
 MAX_ITERATIONS = "maximum iterations reached"
 STALLED = "stalled: no step lowers the cost"
 NOT_FINITE = "failed: the cost at the initial state is not finite"
@@ -246,7 +250,8 @@ def optimize(
     `relative_tolerance` (relative), when the largest component of the step actually
     applied is below `step_tolerance`, or when the linear model predicts a decrease below
     `relative_tolerance` (relative; the cost is at its minimum to working precision: no
-    trial step is made). If no step lowers the cost although the model predicts a
+    trial step is made), or when the full step is rejected but changes the cost only at
+    rounding level (`ROUNDING_RELATIVE`; no shortened or damped step is tried). If no step lowers the cost although the model predicts a
     decrease, the solve stops at the current state and reports itself stalled (not
     converged). Landmarks whose own block of H is singular are left out of the step
     (:func:`solve_schur_blocks`) and counted in the report.
@@ -291,15 +296,18 @@ def optimize(
         blocks = lin.normal_blocks(layout)
         t_solve += time.perf_counter() - t0
         accepted: tuple[State, Linearization, np.ndarray] | None = None
+        last_trial_cost = np.inf
         predicted = 0.0  # decrease of the cost the linear model predicts for the last step tried
 
         def trial(delta: np.ndarray) -> bool:
-            nonlocal accepted, rejected
+            nonlocal accepted, rejected, last_trial_cost
+            last_trial_cost = np.inf
             if not np.all(np.isfinite(delta)):
                 rejected += 1
                 return False
             candidate = problem.retract(state, delta)
             lin_candidate = linearize(candidate)
+            last_trial_cost = lin_candidate.cost
             if np.isfinite(lin_candidate.cost) and lin_candidate.cost <= costs[-1]:
                 accepted = (candidate, lin_candidate, delta)
                 return True
@@ -315,10 +323,15 @@ def optimize(
                 termination = CONVERGED_MODEL  # nothing left to gain: no trial steps
                 break
             step = 1.0
-            for _halving in range(max_step_halvings + 1):
+            for halving in range(max_step_halvings + 1):
                 if trial(step * sol.delta):
                     break
+                if halving == 0 and abs(last_trial_cost - costs[-1]) <= ROUNDING_RELATIVE * max(costs[-1], 1e-300):
+                    termination = CONVERGED_ROUNDING
+                    break
                 step *= 0.5
+            if termination == CONVERGED_ROUNDING:
+                break
         if accepted is None:  # LM, or Gauss-Newton's fallback: damp the same linearization
             if method == "gn":  # the Gauss-Newton solve used H_rr as workspace
                 t0 = time.perf_counter()

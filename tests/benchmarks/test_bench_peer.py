@@ -63,7 +63,7 @@ def test_costs_match_ours_factor_by_factor(data_b: ProblemData) -> None:
 
 def test_gtsam_equal_work_does_ten_iterations(data_b: ProblemData, world_b: sequences.World) -> None:
     peer = bench.solve_peer(data_b, world_b, equal_work=True, repeats=1)
-    ours = bench.solve_ours(data_b, world_b, "P-wo", equal_work=False, repeats=1)
+    ours = bench.solve_ours(data_b, world_b, "P-wo", regime="default", repeats=1)
     assert not peer.failed
     assert peer.iterations == bench.MAX_ITERATIONS
     # gtsam's 3-DoF points can leave the anchor rays P-wo is held to: a lower minimum.

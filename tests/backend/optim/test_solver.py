@@ -137,3 +137,12 @@ def test_a_non_finite_start_is_reported() -> None:
     rho[0] = np.nan
     _, report = optimize(build_problem(dataclasses.replace(data, point_rho=rho), "P-wo"))
     assert report.termination == solver.NOT_FINITE and not report.converged
+
+
+def test_at_the_minimum_it_stops_without_spending_trial_steps(data_b: ProblemData) -> None:
+    """With the convergence tests off, a converged solve's next full step changes the cost only
+    at rounding level: the solver says converged instead of halving and damping that step."""
+    _, report = optimize(build_problem(data_b, "PL-w"), max_iterations=30, relative_tolerance=0.0, step_tolerance=0.0)
+    assert report.converged, report.termination
+    assert report.iterations < 30
+    assert report.linearizations <= report.iterations + 2
