@@ -131,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
         "sequence": args.sequence,
         "runs": args.runs,
         "seed": args.seed,
-        "solver": {"method": {"gn": "gauss-newton", "lm": "levenberg-marquardt"}[args.solver], "max_iterations": montecarlo.MAX_ITERATIONS, "linear_solver": "schur complement + banded or dense cholesky", "gauge": "prior on pose 0 and on the distance from pose 0 to the farthest pose (7 freedoms)"},
+        "solver": {"method": {"gn": "gauss-newton", "lm": "levenberg-marquardt"}[args.solver], "max_iterations": montecarlo.MAX_ITERATIONS, "linear_solver": "schur complement + envelope or dense cholesky", "gauge": "prior on pose 0 and on the distance from pose 0 to the farthest pose (7 freedoms)"},
         "machine": {"python": platform.python_version(), "processor": platform.machine(), "cpus": _cpu_count()},
         "variants": {name: s.to_json() for name, s in summary.items()},
     }

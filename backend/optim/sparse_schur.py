@@ -209,15 +209,13 @@ def _cuthill_mckee(indptr: np.ndarray, indices: np.ndarray, degree: np.ndarray, 
 
 
 @numba.njit(cache=True, nogil=True)
-def _envelope_cost(indptr: np.ndarray, indices: np.ndarray, order: np.ndarray) -> float:
-    """Σ_i (i − f_i + 1)² over the block rows i of the graph under `order`, f_i the row's
-    first neighbour (its envelope's start): proportional to the flops of a Cholesky that
-    works inside the envelope (it fills completely)."""
+def _row_starts(indptr: np.ndarray, indices: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """First block column (under `order`) of each block row's envelope, in the new order."""
     n = order.shape[0]
     position = np.empty(n, np.int64)
     for i in range(n):
         position[order[i]] = i
-    cost = 0.0
+    first = np.empty(n, np.int64)
     for i in range(n):
         u = order[i]
         f = i
@@ -225,7 +223,19 @@ def _envelope_cost(indptr: np.ndarray, indices: np.ndarray, order: np.ndarray) -
             p = position[indices[a]]
             if p < f:
                 f = p
-        cost += float(i - f + 1) ** 2
+        first[i] = f
+    return first
+
+
+@numba.njit(cache=True, nogil=True)
+def _envelope_cost(indptr: np.ndarray, indices: np.ndarray, order: np.ndarray) -> float:
+    """Σ_i (i − f_i + 1)² over the block rows i of the graph under `order`, f_i the row's
+    first neighbour (its envelope's start): proportional to the flops of a Cholesky that
+    works inside the envelope (it fills completely)."""
+    first = _row_starts(indptr, indices, order)
+    cost = 0.0
+    for i in range(order.shape[0]):
+        cost += float(i - first[i] + 1) ** 2
     return cost
 
 
@@ -252,25 +262,6 @@ def _best_envelope_order(indptr: np.ndarray, indices: np.ndarray, degree: np.nda
             best_cost = c
             best = reverse
     return best
-
-
-@numba.njit(cache=True, nogil=True)
-def _row_starts(indptr: np.ndarray, indices: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """First block column (under `order`) of each block row's envelope, in the new order."""
-    n = order.shape[0]
-    position = np.empty(n, np.int64)
-    for i in range(n):
-        position[order[i]] = i
-    first = np.empty(n, np.int64)
-    for i in range(n):
-        u = order[i]
-        f = i
-        for a in range(indptr[u], indptr[u + 1]):
-            p = position[indices[a]]
-            if p < f:
-                f = p
-        first[i] = f
-    return first
 
 
 @dataclasses.dataclass(frozen=True)
