@@ -22,6 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", required=True, type=pathlib.Path, help="write the medians here (JSON)")
     p.add_argument("--plot", type=pathlib.Path, default=None, help="PNG of RMSE and time per variant (default: the --json path with .png)")
     p.add_argument("--solver", choices=("gn", "lm"), default="gn", help="gn: Gauss-Newton (the paper's study, default); lm: Levenberg-Marquardt")
+    p.add_argument("--sigma-rel", type=float, default=None, help="σ of the -r plane residuals as a fraction of the anchor's distance to the plane (default 0.01)")
     p.add_argument("--hessian-dir", type=pathlib.Path, default=None, help="write one Hessian sparsity PNG per variant for the first run")
     p.set_defaults(run=run)
 
@@ -104,6 +105,11 @@ def run(args: argparse.Namespace) -> int:
     if args.runs < 1:
         raise UsageError(f"--runs must be at least 1, got {args.runs}")
     variants = _parse_variants(args.variants)
+    from backend.optim.problem import SIGMA_REL_DEFAULT
+
+    sigma_rel = SIGMA_REL_DEFAULT if args.sigma_rel is None else args.sigma_rel
+    if not (np.isfinite(sigma_rel) and sigma_rel > 0):
+        raise UsageError(f"--sigma-rel {args.sigma_rel}: must be a positive number")
     _check_writable_file(args.json, "--json")
     plot_path = args.plot if args.plot is not None else args.json.with_suffix(".png")
     _check_writable_file(plot_path, "--plot")
@@ -125,13 +131,13 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     with tqdm(total=args.runs, desc=f"sim {args.sequence}", unit="run", file=sys.stderr, disable=None) as bar:
-        summary, results = montecarlo.run_study(args.sequence, runs=args.runs, seed=args.seed, variants=variants, method=args.solver, on_run=lambda _r: bar.update(1))
+        summary, results = montecarlo.run_study(args.sequence, runs=args.runs, seed=args.seed, variants=variants, method=args.solver, sigma_rel=sigma_rel, on_run=lambda _r: bar.update(1))
 
     payload = {
         "sequence": args.sequence,
         "runs": args.runs,
         "seed": args.seed,
-        "solver": {"method": {"gn": "gauss-newton", "lm": "levenberg-marquardt"}[args.solver], "max_iterations": montecarlo.MAX_ITERATIONS, "linear_solver": "schur complement + envelope or dense cholesky", "gauge": "prior on pose 0 and on the distance from pose 0 to the farthest pose (7 freedoms)"},
+        "solver": {"method": {"gn": "gauss-newton", "lm": "levenberg-marquardt"}[args.solver], "max_iterations": montecarlo.MAX_ITERATIONS, "linear_solver": "schur complement + envelope or dense cholesky", "gauge": "prior on pose 0 and on the distance from pose 0 to the farthest pose (7 freedoms)", "sigma_rel": sigma_rel},
         "machine": {"python": platform.python_version(), "processor": platform.machine(), "cpus": _cpu_count()},
         "variants": {name: s.to_json() for name, s in summary.items()},
     }

@@ -18,7 +18,7 @@ from backend.geometry import plane as plane_geo
 from backend.geometry import so3
 from backend.geometry.se3 import Poses
 from backend.mapping.triangulation import triangulate_lines, triangulate_points
-from backend.optim.problem import VARIANTS, DistancePrior, Observations, Odometry, PosePrior, ProblemData, build_problem
+from backend.optim.problem import SIGMA_REL_DEFAULT, VARIANTS, DistancePrior, Observations, Odometry, PosePrior, ProblemData, build_problem
 from backend.optim.solver import SolveReport, optimize
 
 SIGMA_PX = 1.0
@@ -43,7 +43,7 @@ class NoiseModel:
     position_m: float = SIGMA_POS_M
 
 
-def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise: NoiseModel = NoiseModel()) -> ProblemData:
+def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise: NoiseModel = NoiseModel(), sigma_rel: float = SIGMA_REL_DEFAULT) -> ProblemData:
     """Simulate one run: noisy observations, perturbed initial poses with odometry between
     them, the gauge (a prior on pose 0 at its true value and a prior on the true distance
     from pose 0 to the farthest pose: all 7 freedoms of the monocular problem), landmarks
@@ -133,6 +133,7 @@ def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise
         odometry=odometry,
         prior=prior,
         sigma_px=SIGMA_PX,
+        sigma_rel=sigma_rel,
         distance_prior=scale_prior,
     )
 
@@ -205,16 +206,18 @@ def run_study(
     seed: int = 0,
     variants: Sequence[str] = VARIANTS,
     method: str = "gn",
+    sigma_rel: float = SIGMA_REL_DEFAULT,
     on_run: Callable[[int], None] | None = None,
 ) -> tuple[dict[str, VariantSummary], list[RunResult]]:
     """Run the study: the world of `sequence` (landmarks from `seed`), `runs` noise draws
-    (run r uses seed `(seed, r)`), every variant on each draw's identical data."""
+    (run r uses seed `(seed, r)`), every variant on each draw's identical data; `sigma_rel`
+    is the -r residuals' relative standard deviation (`ProblemData.sigma_rel`)."""
     if runs < 1:
         raise ValueError("runs must be at least 1")
     world = sequences.make_world(sequence, seed=seed)
     results: list[RunResult] = []
     for r in range(runs):
-        data = make_problem_data(world, np.random.default_rng([seed, r]))
+        data = make_problem_data(world, np.random.default_rng([seed, r]), sigma_rel=sigma_rel)
         for v in variants:
             results.append(run_variant(data, v, world, method=method, run=r))
         if on_run is not None:

@@ -97,6 +97,8 @@ def _bad_input_cases(tmp: pathlib.Path) -> dict[str, tuple[list[str], list[str],
         "runs-3": (["--sequence", "b", "--runs", "-3", "--json", str(ok_json)], ["--runs", "-3"], ok_json),
         "variants": (["--sequence", "b", "--runs", "1", "--variants", "P-x", "--json", str(ok_json)], ["--variants", "P-x"], ok_json),
         "json-missing-dir": (["--sequence", "b", "--runs", "1", "--json", str(missing_dir_json)], ["--json", "no_such_dir"], missing_dir_json),
+        "sigma-rel0": (["--sequence", "b", "--runs", "1", "--sigma-rel", "0", "--json", str(ok_json)], ["--sigma-rel", "0"], ok_json),
+        "sigma-rel-nan": (["--sequence", "b", "--runs", "1", "--sigma-rel", "nan", "--json", str(ok_json)], ["--sigma-rel", "nan"], ok_json),
     }
 
 
@@ -109,7 +111,7 @@ def _assert_one_error_line(err: str, words: list[str]) -> None:
         assert w in lines[0], (w, lines[0])
 
 
-@pytest.mark.parametrize("case", ["sequence", "runs0", "runs-3", "variants", "json-missing-dir"])
+@pytest.mark.parametrize("case", ["sequence", "runs0", "runs-3", "variants", "json-missing-dir", "sigma-rel0", "sigma-rel-nan"])
 def test_bad_input_is_one_error_line_and_exit_2(case: str, tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
     args, words, json_path = _bad_input_cases(tmp_path)[case]
     rc = cli.main(["sim", *args])

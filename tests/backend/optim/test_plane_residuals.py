@@ -139,7 +139,33 @@ def test_anchor_near_plane_is_not_an_r_pair() -> None:
         problem = build_problem(moved, variant)
         assert not near[problem.point_plane_pairs[:, 0]].any()
         assert not near_lines[problem.line_plane_pairs[:, 0]].any()
-        assert len(problem.point_plane_pairs) == np.sum(_point_plane_valid(moved)) - np.sum(near & _point_plane_valid(moved))
+        # Moving the anchor moves every point anchored there: those far off their planes now
+        # are left out too (MAX_INITIAL_RELATIVE_RESIDUAL); no other pair is.
+        assert len(problem.point_plane_pairs) <= np.sum(_point_plane_valid(moved)) - np.sum(near & _point_plane_valid(moved))
+        before = build_problem(data, variant).point_plane_pairs[:, 0]
+        assert set(before[data.point_anchor[before] != a]) <= set(problem.point_plane_pairs[:, 0])
         assert np.all(np.isfinite(problem.linearize(problem.initial_state()).residual))
     # -w keeps its own rule: the point stays co-planar there (no variable).
     assert build_problem(moved, "P-w").layout.point_col[i] < 0
+
+
+def test_a_feature_that_starts_far_off_its_plane_is_not_an_r_pair() -> None:
+    """A point whose initial depth puts it 1.5 m off its wall (relative residual about 0.5) is
+    left out of -r's plane residuals (a local minimum trap), keeps its inverse depth, and
+    stays co-planar for -w; one 5 cm off stays an -r pair."""
+    from backend.optim.problem import MAX_INITIAL_RELATIVE_RESIDUAL
+
+    data = montecarlo.make_problem_data(sequences.make_world("b"), np.random.default_rng(0))
+    rho = data.point_rho.copy()
+    far, near = 3, 4
+    for i, off in ((far, 1.5), (near, 0.05)):
+        depth = 1.0 / rho[i]
+        rho[i] = 1.0 / (depth + off)  # along the ray, behind the wall (about 4 m away)
+    moved = dataclasses.replace(data, point_rho=rho)
+    problem = build_problem(moved, "P-r")
+    res = problem.linearize(problem.initial_state())
+    assert far not in problem.point_plane_pairs[:, 0]
+    assert near in problem.point_plane_pairs[:, 0]
+    assert problem.layout.point_col[far] >= 0
+    assert build_problem(moved, "P-w").layout.point_col[far] < 0
+    assert np.all(np.isfinite(res.residual)) and MAX_INITIAL_RELATIVE_RESIDUAL == 0.3
