@@ -34,19 +34,19 @@ MIN_PLANE_ANGLE_RAD = np.deg2rad(3.0)
 # for an anchor 1 m from the plane (3 cm at 3 m). Chosen as a physical tolerance: the order of
 # real walls' flatness plus plane-fit and segmentation error at indoor ranges, and well above
 # the pixel-noise floor σ_px/f ≈ 0.002 so that a plane does not overrule the images. In the
-# Monte-Carlo study (10 runs, sequences a and b) -r stays within 3 % of -wo in median RMSE at
-# 0.01; 0.002-0.05 all stay within 10 % except PL-r on a at 0.02 (runs not converged in 10
-# iterations). Pairs whose anchor is closer to the plane than MIN_ANCHOR_PLANE_DISTANCE_M
-# (initial values) are not used (the normalization degenerates).
+# Monte-Carlo study (10 runs, sequences a and b, `coplanar sim --sigma-rel`) -r is level with
+# or ahead of -wo in median RMSE for every σ_rel from 0.002 to 0.05. Pairs whose anchor is
+# closer to the plane than MIN_ANCHOR_PLANE_DISTANCE_M (initial values) are not used (the
+# normalization degenerates).
 SIGMA_REL_DEFAULT = 0.01
 MIN_ANCHOR_PLANE_DISTANCE_M = 1e-3
 # -r does not use a (feature, plane) pair whose initial relative residual exceeds this
 # (the feature starts more than 30 % of its anchor's distance off its plane, about 1 m at
 # 3 m): pulling such a feature onto its plane through the nonlinear residual traps the
-# solve in a local minimum. In the study's sequence a lines along the direction of travel
-# start that badly (10-25 of 100 lines); without the gate PL-r ended 7-13 % behind PL-wo
-# in three of four worlds and, started from PL-wo's solution, reached a lower cost and the
-# better trajectory. A pipeline's plane association (Eq. 4 distance, 15 cm) never pairs
+# solve in a local minimum. In the study's sequence a a median of 16-26 of the 100 lines
+# per run start that badly; without the gate PL-r ended 9 and 12 % behind PL-wo in two of
+# four worlds and, started from PL-wo's solution, reached a lower cost and the better
+# trajectory. A pipeline's plane association (Eq. 4 distance, 15 cm) never pairs
 # such a feature; -w is unaffected (it builds the feature on its plane).
 MAX_INITIAL_RELATIVE_RESIDUAL = 0.3
 
