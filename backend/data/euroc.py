@@ -1,4 +1,4 @@
-"""Reader of EuRoC ASL folders: `mav0/cam0`, `mav0/cam1`, `mav0/imu0` and, optionally,
+"""Reader of EuRoC ASL folders: `mav0/cam0`, `mav0/cam1` and, optionally, `mav0/imu0` and
 `mav0/state_groundtruth_estimate0`, each with `data.csv` and `sensor.yaml`.
 
 Frames and units: timestamps are int64 nanoseconds; poses `T_world_x` (4, 4) in metres with
@@ -10,9 +10,24 @@ interpolated at frame times (linear in position, slerp in rotation), then
 frames outside the ground truth's time range, or in a gap longer than `max_ground_truth_gap_ns`,
 get NaN poses.
 
-Stereo frames are the timestamps listed in both cameras' `data.csv`; every listed image must
-exist on disk. Images load lazily, by frame index. Every problem with the input is a
-DatasetError naming the file (and the 1-based line of a CSV).
+Stereo frames are the timestamps listed in both cameras' `data.csv` (DESIGN §8: what users
+have is valid). Rows of one camera outside that set are ignored: their images are not looked
+for (a camera list may be longer than the other, or name images that were never copied).
+Every row must still be a well-formed CSV row (timestamp, non-empty filename). An image
+missing *inside* the stereo set is an error at load, not a dropped frame: a one-line
+DatasetError naming the camera's `data.csv`, its line and the image (`cam0/data.csv line 12:
+image …/data/….png is listed but absent`); a folder with a hole in the middle of the sequence
+is a broken copy, and silently skipping frames would hide that. No timestamp in common is a
+DatasetError naming both lists. Images may be any format OpenCV decodes (PNG, JPEG, ...) as
+`data.csv` names them; they load lazily, by frame index.
+
+The IMU is optional (stereo SLAM does not need it; `has_imu` says whether there is IMU data).
+A missing `imu0` folder, or an `imu0/data.csv` with no data rows (a header only), means no IMU
+data: the folder loads, and `imu`, `imu_between` (and `imu_calibration` when `imu0` is absent)
+raise a one-line DatasetError (`…/mav0/imu0: missing folder: IMU data is needed for VIO`) only
+when asked. A present but malformed `imu0` (missing `sensor.yaml` or `data.csv`, a truncated
+row, NaN, ...) is an error at load, as is every other problem with the input: a DatasetError
+naming the file (and the 1-based line of a CSV).
 """
 
 from __future__ import annotations
@@ -101,7 +116,8 @@ class GroundTruth:
 
 
 class EurocDataset:
-    """A stereo + IMU EuRoC ASL folder (module docstring for frames and units).
+    """A stereo EuRoC ASL folder, with or without IMU data (module docstring for frames, units
+    and what is accepted).
 
     `root` is the folder holding `mav0` (or `mav0` itself). Raises DatasetError on bad input.
     """
@@ -111,24 +127,22 @@ class EurocDataset:
         mav0 = _find_mav0(self.root)
         cam0_dir = _require_folder(mav0 / "cam0")
         cam1_dir = _require_folder(mav0 / "cam1")
-        imu_dir = _require_folder(mav0 / "imu0")
 
         self.cam0: CameraCalibration = read_camera_yaml(cam0_dir / "sensor.yaml")
         self.cam1: CameraCalibration = read_camera_yaml(cam1_dir / "sensor.yaml")
-        self.imu_calibration: ImuCalibration = read_imu_yaml(imu_dir / "sensor.yaml")
         self.rectification: StereoRectification = stereo_rectification(self.cam0, self.cam1)
 
-        stamps0, images0 = _read_camera_csv(cam0_dir)
-        stamps1, images1 = _read_camera_csv(cam1_dir)
+        stamps0, lines0, names0 = _read_camera_csv(cam0_dir)
+        stamps1, lines1, names1 = _read_camera_csv(cam1_dir)
         common, index0, index1 = np.intersect1d(stamps0, stamps1, assume_unique=True, return_indices=True)
         if common.shape[0] == 0:
-            raise DatasetError(cam1_dir / "data.csv", f"no timestamp in common with {cam0_dir / 'data.csv'}")
+            raise DatasetError(cam1_dir / "data.csv", f"no timestamp in common with {cam0_dir / 'data.csv'} (stereo frames are the timestamps listed in both)")
         self.timestamps_ns: np.ndarray = common
-        self._images0 = [images0[i] for i in index0]
-        self._images1 = [images1[i] for i in index1]
+        self._images0 = _stereo_images(cam0_dir, [lines0[i] for i in index0], [names0[i] for i in index0])
+        self._images1 = _stereo_images(cam1_dir, [lines1[i] for i in index1], [names1[i] for i in index1])
         self.unpaired_images: tuple[int, int] = (stamps0.shape[0] - common.shape[0], stamps1.shape[0] - common.shape[0])
 
-        self.imu: ImuData = _read_imu_csv(imu_dir / "data.csv")
+        self._imu_calibration, self._imu, self._no_imu = _read_imu(mav0 / "imu0")
 
         self.ground_truth: GroundTruth | None = None
         truth_dir = mav0 / "state_groundtruth_estimate0"
@@ -167,10 +181,34 @@ class EurocDataset:
         """Frame `index`'s rectified rect0, rect1 images: grayscale uint8, pixels of `camera`."""
         return self.rectification.rectify(*self.raw_pair(index))
 
+    @property
+    def has_imu(self) -> bool:
+        """Whether the folder has IMU data (`imu0` with at least one sample)."""
+        return self._imu is not None
+
+    @property
+    def imu(self) -> ImuData:
+        """Every IMU sample; DatasetError (one line naming `imu0`) without IMU data."""
+        if self._imu is None:
+            raise self._no_imu_error()
+        return self._imu
+
+    @property
+    def imu_calibration(self) -> ImuCalibration:
+        """`imu0/sensor.yaml`; DatasetError (one line naming `imu0`) without an `imu0` folder."""
+        if self._imu_calibration is None:
+            raise self._no_imu_error()
+        return self._imu_calibration
+
     def imu_between(self, t0_ns: int, t1_ns: int) -> ImuData:
         """IMU samples with `t0_ns < t <= t1_ns`: gyro rad/s, accelerometer m/s², in the IMU
-        frame (`imu_calibration.T_body_imu`; the identity, i.e. the body frame, in EuRoC)."""
+        frame (`imu_calibration.T_body_imu`; the identity, i.e. the body frame, in EuRoC).
+        DatasetError (one line naming `imu0`) without IMU data (`has_imu` False)."""
         return self.imu.between(t0_ns, t1_ns)
+
+    def _no_imu_error(self) -> DatasetError:
+        path, reason = self._no_imu
+        return DatasetError(path, f"{reason}: IMU data is needed for VIO (stereo runs without it)")
 
     def _check_index(self, index: int) -> int:
         n = len(self)
@@ -196,7 +234,7 @@ def _find_mav0(root: pathlib.Path) -> pathlib.Path:
         return root / "mav0"
     if root.name == "mav0" and (root / "cam0").is_dir():
         return root
-    raise DatasetError(root, "no mav0 folder (expected an EuRoC ASL dataset: mav0/cam0, mav0/cam1, mav0/imu0)")
+    raise DatasetError(root, "no mav0 folder (expected an EuRoC ASL dataset: mav0/cam0, mav0/cam1 and, optionally, mav0/imu0)")
 
 
 def _require_folder(path: pathlib.Path) -> pathlib.Path:
@@ -207,10 +245,10 @@ def _require_folder(path: pathlib.Path) -> pathlib.Path:
     return path
 
 
-def _read_rows(path: pathlib.Path, columns: tuple[str, ...], *, counts: tuple[int, ...] | None = None) -> tuple[list[int], list[list[str]]]:
+def _read_rows(path: pathlib.Path, columns: tuple[str, ...], *, counts: tuple[int, ...] | None = None, allow_empty: bool = False) -> tuple[list[int], list[list[str]]]:
     """Data rows of an EuRoC CSV with their 1-based line numbers. Lines starting with `#`
     (the header) and blank lines are skipped. Every row has `len(columns)` fields, or one of
-    `counts` (the first row chooses)."""
+    `counts` (the first row chooses). No data rows is an error unless `allow_empty`."""
     counts = counts or (len(columns),)
     lines: list[int] = []
     rows: list[list[str]] = []
@@ -231,7 +269,7 @@ def _read_rows(path: pathlib.Path, columns: tuple[str, ...], *, counts: tuple[in
             raise DatasetError(path, f"{kind}: {len(fields)} column{'s' * (len(fields) != 1)}, expected {wanted}", line=number)
         lines.append(number)
         rows.append(fields)
-    if not rows:
+    if not rows and not allow_empty:
         raise DatasetError(path, "no data rows")
     return lines, rows
 
@@ -272,32 +310,60 @@ def _values(path: pathlib.Path, lines: list[int], rows: list[list[str]], columns
     return values
 
 
-def _read_camera_csv(camera_dir: pathlib.Path) -> tuple[np.ndarray, list[pathlib.Path]]:
-    """A camera's timestamps and image files; every listed image must exist."""
+def _read_camera_csv(camera_dir: pathlib.Path) -> tuple[np.ndarray, list[int], list[str]]:
+    """A camera's timestamps, with the 1-based line and the image file name of each row.
+    Images are not looked for here: only those of stereo frames must exist (`_stereo_images`)."""
     path = camera_dir / "data.csv"
     lines, rows = _read_rows(path, CAMERA_COLUMNS)
     stamps = _timestamps(path, lines, rows)
+    for line, fields in zip(lines, rows):
+        if not fields[1]:
+            raise DatasetError(path, "empty filename", line=line)
+    return stamps, lines, [fields[1] for fields in rows]
+
+
+def _stereo_images(camera_dir: pathlib.Path, lines: list[int], names: list[str]) -> list[pathlib.Path]:
+    """The image files of a camera's stereo-frame rows (`lines` of its `data.csv`); every one
+    must exist, else a DatasetError naming the list, the line and the image."""
+    path = camera_dir / "data.csv"
     data_dir = camera_dir / "data"
     try:
         present = set(os.listdir(data_dir))
     except FileNotFoundError:
         raise DatasetError(data_dir, f"missing folder (the images listed in {path})") from None
+    except NotADirectoryError:
+        raise DatasetError(data_dir, f"not a folder (expected the images listed in {path})") from None
     except OSError as error:
         raise DatasetError(data_dir, f"cannot list ({error.strerror or error})") from None
     images = []
-    for line, fields in zip(lines, rows):
-        name = fields[1]
-        if not name:
-            raise DatasetError(path, "empty filename", line=line)
+    for line, name in zip(lines, names):
         image = data_dir / name
         if name not in present and not image.is_file():
             raise DatasetError(path, f"image {image} is listed but absent", line=line)
         images.append(image)
-    return stamps, images
+    return images
 
 
-def _read_imu_csv(path: pathlib.Path) -> ImuData:
-    lines, rows = _read_rows(path, IMU_COLUMNS)
+def _read_imu(imu_dir: pathlib.Path) -> tuple[ImuCalibration | None, ImuData | None, tuple[pathlib.Path, str] | None]:
+    """`imu0`'s calibration and samples, or None for what is not there, with the path and
+    reason to report when IMU data is asked for: no folder, or a `data.csv` without data
+    rows. A present but malformed `imu0` is a DatasetError here."""
+    if not imu_dir.exists():
+        return None, None, (imu_dir, "missing folder")
+    _require_folder(imu_dir)
+    calibration = read_imu_yaml(imu_dir / "sensor.yaml")
+    path = imu_dir / "data.csv"
+    imu = _read_imu_csv(path)
+    if imu is None:
+        return calibration, None, (path, "no data rows")
+    return calibration, imu, None
+
+
+def _read_imu_csv(path: pathlib.Path) -> ImuData | None:
+    """The samples of `imu0/data.csv`; None for a file without data rows (a header only)."""
+    lines, rows = _read_rows(path, IMU_COLUMNS, allow_empty=True)
+    if not rows:
+        return None
     stamps = _timestamps(path, lines, rows)
     values = _values(path, lines, rows, IMU_COLUMNS)
     return ImuData(timestamp_ns=stamps, gyro=values[:, 0:3], accel=values[:, 3:6])

@@ -92,6 +92,11 @@ class SyntheticSequence:
     def __len__(self) -> int:
         return int(self.timestamps_ns.shape[0])
 
+    @property
+    def has_imu(self) -> bool:
+        """Rendered sequences always simulate the IMU (the reader's interface)."""
+        return True
+
     def imu_between(self, t0_ns: int, t1_ns: int) -> ImuData:
         """Noisy IMU samples with `t0_ns < t <= t1_ns` (body frame)."""
         return self.imu.between(t0_ns, t1_ns)

@@ -330,7 +330,6 @@ BAD_INPUTS = {
     "nan in imu": (_edit_line("mav0/imu0/data.csv", 17, _set_field(2, "nan")), "mav0/imu0/data.csv", 17, "NaN in column w_RS_S_y"),
     "inf in imu": (_edit_line("mav0/imu0/data.csv", 11, _set_field(4, "inf")), "mav0/imu0/data.csv", 11, "infinite value in column a_RS_S_x"),
     "zero quaternion": (_edit_line("mav0/state_groundtruth_estimate0/data.csv", 3, lambda s: ",".join(s.split(",")[:4] + ["0", "0", "0", "0"] + s.split(",")[8:])), "mav0/state_groundtruth_estimate0/data.csv", 3, "quaternion"),
-    "empty imu file": (_edit("mav0/imu0/data.csv", "\n", "\n#", IMU_COUNT), "mav0/imu0/data.csv", None, "no data rows"),
     "image listed but absent": (_remove(_first_image("cam1")), "mav0/cam1/data.csv", 2, _first_image("cam1")),
     "image folder absent": (_remove("mav0/cam0/data"), "mav0/cam0/data", None, "missing folder"),
     "yaml without intrinsics": (_edit("mav0/cam0/sensor.yaml", "intrinsics:", "# intrinsics:"), "mav0/cam0/sensor.yaml", None, "missing key 'intrinsics'"),
@@ -423,3 +422,121 @@ def test_ground_truth_sensor_extrinsics(euroc: pathlib.Path) -> None:
     np.testing.assert_allclose(dataset.T_world_body[4], T_world_sensor @ np.linalg.inv(T_body_sensor), atol=1e-6)
     truth_yaml.write_text("%YAML:1.0\nsensor_type: visual-inertial\ncomment: no extrinsics\n")
     np.testing.assert_allclose(EurocDataset(euroc).T_world_body[4], T_world_sensor, atol=1e-9)
+
+
+# --- folders as users have them (DESIGN §8): no imu0, longer camera lists, JPEG images
+
+
+def _assert_no_imu(dataset: EurocDataset, root: pathlib.Path, path: str, words: str) -> None:
+    """`has_imu` False; asking for IMU data is one line naming `path`, and says VIO needs it."""
+    assert dataset.has_imu is False
+    for ask in (lambda: dataset.imu_between(int(dataset.timestamps_ns[0]), int(dataset.timestamps_ns[1])), lambda: dataset.imu):
+        with pytest.raises(DatasetError) as caught:
+            ask()
+        _assert_one_line(caught.value, root, path, None, words)
+        assert "IMU data is needed for VIO" in str(caught.value)
+
+
+def test_folder_without_imu0_loads_for_stereo(euroc: pathlib.Path) -> None:
+    with_imu = EurocDataset(euroc)
+    assert with_imu.has_imu is True
+    _remove("mav0/imu0")(euroc)
+    dataset = EurocDataset(euroc)
+    assert len(dataset) == len(FRAME_K)
+    np.testing.assert_array_equal(dataset.timestamps_ns, with_imu.timestamps_ns)
+    left, right = dataset.raw_pair(3)
+    np.testing.assert_array_equal(left, _image("cam0", 4))
+    np.testing.assert_array_equal(right, _image("cam1", 4))
+    np.testing.assert_allclose(dataset.T_world_rect0[1:], with_imu.T_world_rect0[1:])
+    _assert_no_imu(dataset, euroc, "mav0/imu0", "mav0/imu0: missing folder")
+    with pytest.raises(DatasetError, match="imu0: missing folder"):
+        dataset.imu_calibration  # noqa: B018
+
+
+def test_imu0_with_a_header_only_is_no_imu_data(euroc: pathlib.Path) -> None:
+    """A header-only (or all rows commented out) imu0/data.csv: no IMU data, as without imu0;
+    its sensor.yaml is still read (and must be valid)."""
+    (euroc / "mav0/imu0/data.csv").write_text(IMU_HEADER + "\n")
+    dataset = EurocDataset(euroc)
+    assert len(dataset) == len(FRAME_K)
+    _assert_no_imu(dataset, euroc, "mav0/imu0/data.csv", "no data rows")
+    assert dataset.imu_calibration.rate_hz == 200.0
+    _edit("mav0/imu0/data.csv", "\n", "\n#")(euroc)  # header line then a commented line: the same
+    assert EurocDataset(euroc).has_imu is False
+    _edit("mav0/imu0/sensor.yaml", "T_BS:", "T_SB:")(euroc)
+    with pytest.raises(DatasetError, match="missing key 'T_BS'"):
+        EurocDataset(euroc)
+
+
+def _append_rows(relative: str, stamps: list[int], suffix: str = ".png") -> Callable[[pathlib.Path], None]:
+    def append(root: pathlib.Path) -> None:
+        path = root / relative
+        path.write_text(path.read_text() + "".join(f"{t},{t}{suffix}\n" for t in stamps))
+    return append
+
+
+def test_camera_rows_outside_the_stereo_set_are_ignored(euroc: pathlib.Path) -> None:
+    """cam1 lists more timestamps than cam0 (after its end), with no image on disk; cam0 lists
+    k = 3 and k = 10, absent from cam1, and their images are deleted: the stereo frames are the
+    intersection and nothing outside it is looked for."""
+    extra = [T0_NS + k * FRAME_NS for k in range(11, 16)]
+    _append_rows("mav0/cam1/data.csv", extra)(euroc)
+    for k in (3, 10):
+        (euroc / f"mav0/cam0/data/{T0_NS + k * FRAME_NS}.png").unlink()
+    dataset = EurocDataset(euroc)
+    np.testing.assert_array_equal(dataset.timestamps_ns, [T0_NS + k * FRAME_NS for k in FRAME_K])
+    assert dataset.unpaired_images == (2, len(extra))
+    np.testing.assert_array_equal(dataset.raw_pair(-1)[1], _image("cam1", 9))
+
+
+def test_image_missing_inside_the_stereo_set_is_one_line(euroc: pathlib.Path) -> None:
+    """k = 5 is a stereo frame (line 7 of cam0/data.csv, header on line 1): its absent image is
+    an error at load naming the list, the line and the image, not a dropped frame."""
+    _append_rows("mav0/cam1/data.csv", [T0_NS + 20 * FRAME_NS])(euroc)  # an ignored row beside it
+    image = f"mav0/cam0/data/{T0_NS + 5 * FRAME_NS}.png"
+    (euroc / image).unlink()
+    with pytest.raises(DatasetError) as caught:
+        EurocDataset(euroc)
+    _assert_one_line(caught.value, euroc, "mav0/cam0/data.csv", 7, f"image {euroc / image} is listed but absent")
+
+
+def test_no_common_timestamp_names_both_lists(tmp_path: pathlib.Path) -> None:
+    root = write_euroc(tmp_path / "seq")
+    _shift_cam1(root)
+    with pytest.raises(DatasetError) as caught:
+        EurocDataset(root)
+    _assert_one_line(caught.value, root, "mav0/cam1/data.csv", None, "no timestamp in common")
+    assert str(root / "mav0/cam0/data.csv") in str(caught.value)
+
+
+def test_jpeg_images_named_in_data_csv_load(euroc: pathlib.Path) -> None:
+    """JPEG (as the shared MH_01 slice): the lists name .jpg files; frames decode to grayscale."""
+    for camera in ("cam0", "cam1"):
+        csv = euroc / f"mav0/{camera}/data.csv"
+        for png in sorted((euroc / f"mav0/{camera}/data").glob("*.png")):
+            cv2.imwrite(str(png.with_suffix(".jpg")), cv2.imread(str(png), cv2.IMREAD_GRAYSCALE), [cv2.IMWRITE_JPEG_QUALITY, 100])
+            png.unlink()
+        csv.write_bytes(csv.read_bytes().replace(b".png", b".jpg"))
+    dataset = EurocDataset(euroc)
+    assert len(dataset) == len(FRAME_K) and dataset.image_paths(0)[0].suffix == ".jpg"
+    left, right = dataset.raw_pair(3)
+    assert left.dtype == np.uint8 and left.shape == (HEIGHT, WIDTH)
+    # JPEG is lossy even at quality 100 on noise: close, not equal.
+    assert np.abs(left.astype(int) - _image("cam0", 4)).mean() < 4.0
+    assert dataset.rectified_pair(0)[0].shape == (HEIGHT, WIDTH)
+
+
+MH01_SLICE = pathlib.Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "euroc_mh01_slice"
+
+
+@pytest.mark.skipif(not MH01_SLICE.is_dir(), reason="shared MH_01 slice absent")
+def test_real_mh01_slice_without_imu0_and_with_jpeg() -> None:
+    dataset = EurocDataset(MH01_SLICE)
+    assert len(dataset) == 300 and dataset.has_imu is False
+    assert dataset.image_paths(0)[0].suffix == ".jpg"
+    assert dataset.ground_truth_valid.all()
+    left, right = dataset.raw_pair(0)
+    assert left.shape == right.shape == (480, 752) and left.dtype == np.uint8
+    assert dataset.camera.baseline == pytest.approx(0.110, abs=0.001)
+    with pytest.raises(DatasetError, match="imu0: missing folder: IMU data is needed for VIO"):
+        dataset.imu_between(int(dataset.timestamps_ns[0]), int(dataset.timestamps_ns[1]))

@@ -76,3 +76,28 @@ def test_extras_depth_and_planes(tmp_path: pathlib.Path) -> None:
     table = np.loadtxt(mav0 / "planes.csv", delimiter=",")
     assert table.shape == (4, 5)
     np.testing.assert_allclose(table[:, 4], [-3.0, 1.0, 2.0, 0.5])
+
+
+def test_written_folder_without_imu0_reads_for_stereo(tmp_path: pathlib.Path) -> None:
+    """DESIGN §8: a stereo folder without imu0 is valid; IMU data is asked for only by VIO."""
+    import shutil
+
+    import pytest
+
+    from backend.data.errors import DatasetError
+
+    stamps, _, _ = _write(tmp_path / "seq")
+    with_imu = EurocDataset(tmp_path / "seq")
+    shutil.rmtree(tmp_path / "seq" / "mav0" / "imu0")
+    ds = EurocDataset(tmp_path / "seq")
+    assert ds.has_imu is False and with_imu.has_imu is True
+    assert len(ds) == len(with_imu) == len(stamps)
+    np.testing.assert_array_equal(ds.timestamps_ns, stamps)
+    for i in (0, len(ds) - 1):
+        for a, b in zip(ds.raw_pair(i), with_imu.raw_pair(i)):
+            np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(ds.T_world_rect0, with_imu.T_world_rect0)
+    with pytest.raises(DatasetError) as caught:
+        ds.imu_between(int(stamps[1]), int(stamps[2]))
+    message = str(caught.value)
+    assert message == f"{tmp_path / 'seq' / 'mav0' / 'imu0'}: missing folder: IMU data is needed for VIO (stereo runs without it)"

@@ -1,0 +1,88 @@
+"""`coplanar run --dataset` on EuRoC folders as users have them (DESIGN §8): no imu0 and
+camera lists with rows outside the stereo set run; a truly broken folder is one `error:`
+line naming the file, exit 2, nothing written."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import pathlib
+import shutil
+
+import pytest
+
+from app import cli
+
+
+def _run(argv: list[str]) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = cli.main(["run", *argv])
+    return rc, out.getvalue(), err.getvalue()
+
+
+def _one_error_line(err: str, words: list[str]) -> None:
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and all(w in lines[0] for w in words), err
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
+    """The `room` scene rendered for 0.5 s (11 frames) into an EuRoC folder."""
+    from backend.data.scenes import builtin_scene
+    from backend.data.synthetic import SequenceSettings, render_sequence
+
+    root = tmp_path_factory.mktemp("euroc") / "room"
+    render_sequence(builtin_scene("room"), root, settings=SequenceSettings(duration_s=0.5, seed=0))
+    return root
+
+
+def test_run_without_imu0_and_with_a_longer_cam1_list(rendered: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    root = tmp_path / "seq"
+    shutil.copytree(rendered, root)
+    shutil.rmtree(root / "mav0" / "imu0")
+    cam1 = root / "mav0" / "cam1" / "data.csv"
+    last = int(cam1.read_text().strip().splitlines()[-1].split(",")[0])
+    cam1.write_text(cam1.read_text() + "".join(f"{last + k * 50_000_000},{last + k * 50_000_000}.png\n" for k in (1, 2)))  # images absent
+    out = tmp_path / "out"
+    rc, stdout, err = _run(["--dataset", str(root), "--variant", "P-wo", "--out", str(out)])
+    assert rc == 0, err
+    assert json.loads((out / "metrics.json").read_text())["frames"] == 11
+    assert "11 frames" in stdout
+
+
+@pytest.mark.parametrize(
+    ("remove", "words"),
+    [
+        ("mav0/cam0", ["mav0/cam0", "missing folder"]),
+        ("mav0/cam1/sensor.yaml", ["mav0/cam1/sensor.yaml", "missing file"]),
+        ("mav0/imu0/data.csv", ["mav0/imu0/data.csv", "missing file"]),  # imu0 present but broken
+    ],
+)
+def test_broken_folder_is_one_error_line_and_exit_2(rendered: pathlib.Path, tmp_path: pathlib.Path, remove: str, words: list[str]) -> None:
+    root = tmp_path / "seq"
+    shutil.copytree(rendered, root)
+    victim = root / remove
+    shutil.rmtree(victim) if victim.is_dir() else victim.unlink()
+    out = tmp_path / "out"
+    rc, stdout, err = _run(["--dataset", str(root), "--variant", "PL-w", "--out", str(out)])
+    assert rc == 2 and stdout == ""
+    _one_error_line(err, [str(root / remove), *words[1:]])
+    assert not out.exists()
+
+
+def test_missing_stereo_image_names_the_list_and_line(rendered: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    root = tmp_path / "seq"
+    shutil.copytree(rendered, root)
+    shutil.rmtree(root / "mav0" / "imu0")
+    listed = (root / "mav0" / "cam1" / "data.csv").read_text().splitlines()
+    assert listed[0].startswith("#")
+    victim = root / "mav0" / "cam1" / "data" / listed[5].split(",")[1]  # line 6 of the list: the fifth frame
+    victim.unlink()
+    out = tmp_path / "out"
+    rc, _, err = _run(["--dataset", str(root), "--variant", "PL-w", "--out", str(out)])
+    assert rc == 2
+    _one_error_line(err, [f"{root / 'mav0' / 'cam1' / 'data.csv'} line 6:", victim.name, "listed but absent"])
+    assert not out.exists()
