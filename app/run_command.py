@@ -1,4 +1,20 @@
-"""`coplanar run`: the engine headless, writing the trajectory, metrics and map (DESIGN §7)."""
+"""`coplanar run`: the engine headless, writing the trajectory, metrics and map (DESIGN §7).
+
+Outputs in `--out DIR`:
+
+- `trajectory.txt`: TUM (`t x y z qx qy qz qw`, seconds, `T_world_camera` of the rectified
+  left camera), one line per tracked frame (the stereo engine's per-frame trajectory: each
+  frame's pose relative to its reference keyframe composed with that keyframe's final
+  estimate; lost frames are left out). The Monte-Carlo worlds have keyframes only: there it
+  is the keyframes (`metrics.json` says so: `trajectory_poses`, `frames == keyframes`).
+- `keyframes.txt`: the same for the keyframes only.
+- `groundtruth.txt`: the ground truth of the evaluated frames (those of trajectory.txt with
+  ground truth), TUM, the same timestamps: `evo_ape tum DIR/groundtruth.txt
+  DIR/trajectory.txt -a` reproduces `ate_rmse_cm` (`-as`: `ate_sim3_rmse_cm`), and
+  `evo_rpe tum DIR/groundtruth.txt DIR/trajectory.txt --delta 1 --delta_unit m`
+  reproduces `rpe_cm_per_m`.
+- `metrics.json` (see :func:`trajectory_metrics` for the trajectory figures) and `map.ply`.
+"""
 
 from __future__ import annotations
 
@@ -17,7 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     from app.sources import add_source_arguments
     from backend.optim.problem import VARIANTS
 
-    p = sub.add_parser("run", help="run the engine headless; write trajectory.txt, metrics.json and map.ply")
+    p = sub.add_parser("run", help="run the engine headless; write trajectory.txt (every tracked frame), keyframes.txt, groundtruth.txt, metrics.json and map.ply")
     add_source_arguments(p, duration_default=DEFAULT_DURATION_S)
     p.add_argument("--variant", required=True, choices=VARIANTS, help="parametrization")
     p.add_argument("--out", required=True, type=pathlib.Path, help="output folder (created if missing)")
@@ -52,13 +68,76 @@ def _json_safe(value):  # noqa: ANN001, ANN202
     return value
 
 
-def _write_outputs(out: pathlib.Path, snapshot, metrics: dict) -> None:  # noqa: ANN001
+RPE_DELTA_M = 1.0  # path length per relative-pose-error pair, metres
+
+
+def trajectory_metrics(estimate, ground_truth) -> tuple[dict, object]:  # noqa: ANN001
+    """Accuracy of the poses `estimate` (a Trajectory) against `ground_truth` (a Trajectory
+    of the same instants, NaN rows: none); also the evaluated ground truth (a Trajectory).
+
+    Evaluated: the poses with ground truth (`frames_evaluated`). Positions are taken as
+    written to the TUM file (9 decimals), so evo on the files gives the same figures:
+
+    - `ate_rmse_cm`: absolute trajectory error, RMSE of the position errors after the
+      least-squares rigid alignment of the estimate to the ground truth (Umeyama, SE(3));
+      `evo_ape tum groundtruth.txt trajectory.txt -a`. Null below 2 evaluated poses.
+    - `ate_sim3_rmse_cm`: the same after a similarity alignment (Sim(3), `-as`); null below 3.
+    - `rmse_cm`: RMSE of the position errors without alignment (the engine starts at the
+      ground-truth pose where there is one).
+    - `rpe_cm_per_m`: relative pose error, RMSE over consecutive pose pairs about
+      `rpe_delta_m` = 1 m of travelled path apart (path measured on the estimate) of the
+      translation of `(Q_i⁻¹ Q_j)⁻¹ (P_i⁻¹ P_j)`, in cm, i.e. cm per metre travelled;
+      `evo_rpe tum groundtruth.txt trajectory.txt --delta 1 --delta_unit m`. Null when the
+      path is shorter than 1 m (`rpe_pairs` 0).
+    """
+    import numpy as np
+
+    from backend.eval.trajectory import ate_rmse, relative_pose_error, translational_rmse
+    from backend.pipeline.snapshot import Trajectory
+
+    valid = np.isfinite(ground_truth.t_world_camera).all(axis=1) if len(ground_truth) else np.zeros(0, bool)
+    if len(ground_truth) != len(estimate):
+        valid = np.zeros(len(estimate), bool)
+    stamp = np.asarray(estimate.timestamp_ns)[valid]
+    p_est = np.round(np.asarray(estimate.t_world_camera)[valid], 9)
+    p_gt = np.round(np.asarray(ground_truth.t_world_camera)[valid], 9)
+    R_est = np.asarray(estimate.R_world_camera)[valid]
+    R_gt = np.asarray(ground_truth.R_world_camera)[valid]
+    n = int(valid.sum())
+    nan = float("nan")
+    rpe = relative_pose_error(R_est, p_est, R_gt, p_gt, delta_m=RPE_DELTA_M) if n else None
+    metrics = {
+        "frames_evaluated": n,
+        "ate_rmse_cm": 100.0 * ate_rmse(p_est, p_gt, align="se3") if n >= 2 else nan,
+        "ate_sim3_rmse_cm": 100.0 * ate_rmse(p_est, p_gt, align="sim3") if n >= 3 else nan,
+        "rmse_cm": 100.0 * translational_rmse(p_est, p_gt) if n else nan,
+        "rpe_cm_per_m": rpe.rmse_cm_per_m if rpe is not None else nan,
+        "rpe_delta_m": RPE_DELTA_M,
+        "rpe_pairs": rpe.pairs if rpe is not None else 0,
+    }
+    return metrics, Trajectory.of(stamp, R_gt, p_gt)
+
+
+def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, groundtruth) -> None:  # noqa: ANN001
+    """trajectory.txt (`frames`: every tracked frame), keyframes.txt, groundtruth.txt,
+    metrics.json and map.ply."""
     from backend.export.ply import write_ply
     from backend.export.tum import write_tum
 
-    write_tum(out / "trajectory.txt", snapshot.estimate)
+    write_tum(out / "trajectory.txt", frames)
+    write_tum(out / "keyframes.txt", snapshot.estimate)
+    write_tum(out / "groundtruth.txt", groundtruth)
     (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2, allow_nan=False) + "\n")
     write_ply(out / "map.ply", snapshot)
+
+
+def _no_ground_truth(estimate):  # noqa: ANN001, ANN202
+    import numpy as np
+
+    from backend.pipeline.snapshot import Trajectory
+
+    n = len(estimate)
+    return Trajectory.of(np.asarray(estimate.timestamp_ns), np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan))
 
 
 def _cm(value: float) -> str:
@@ -96,13 +175,18 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
             bar.update(1)
     assert snapshot is not None
     mean = {k: float(np.mean(v)) for k, v in timings.items()}
+    # No images, no frames between keyframes: the trajectory is the keyframes'.
+    gt = snapshot.ground_truth if snapshot.ground_truth is not None else _no_ground_truth(snapshot.estimate)
+    accuracy, evaluated = trajectory_metrics(snapshot.estimate, gt)
     metrics = {
         "source": engine.source,
         "variant": args.variant,
+        "trajectory_poses": "keyframes (a Monte-Carlo world has no frames between keyframes)",
         "frames": n,
+        "frames_tracked": len(snapshot.estimate),
         "keyframes": n,
-        "ate_rmse_cm": snapshot.metrics.ate_cm,
-        "rmse_cm": snapshot.metrics.rmse_cm,
+        **accuracy,
+        "keyframe_ate_rmse_cm": snapshot.metrics.ate_cm,
         "planes": len(snapshot.planes),
         "points": len(snapshot.points),
         "lines": len(snapshot.lines),
@@ -118,9 +202,10 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
             "all_stages": mean,
         },
     }
-    _write_outputs(args.out, snapshot, metrics)
-    print(f"{n} keyframes, {args.variant}: ATE {_cm(snapshot.metrics.ate_cm)} (SE3-aligned), RMSE {_cm(snapshot.metrics.rmse_cm)}, "
-          f"{len(snapshot.planes)} planes; {mean['total']:.1f} ms per keyframe; wrote {args.out}/trajectory.txt, metrics.json, map.ply")
+    _write_outputs(args.out, snapshot, metrics, frames=snapshot.estimate, groundtruth=evaluated)
+    print(f"{n} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned), RMSE {_cm(metrics['rmse_cm'])}, "
+          f"{len(snapshot.planes)} planes; {mean['total']:.1f} ms per keyframe; "
+          f"wrote {args.out}/trajectory.txt (keyframes), keyframes.txt, groundtruth.txt, metrics.json, map.ply")
     return 0
 
 
@@ -189,13 +274,18 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
         engine.on_frame = None
     if snapshot is None:
         raise UsageError(f"{engine.source}: no keyframe in {engine.frames} frames")
+    frames = engine.frame_trajectory()
+    accuracy, evaluated = trajectory_metrics(frames.estimate, frames.ground_truth)
     metrics = {
         "source": engine.source,
         "variant": args.variant,
+        "trajectory_poses": "tracked frames",
         "frames": engine.frames,
+        "frames_tracked": len(frames),
         "keyframes": len(snapshot.estimate),
-        "ate_rmse_cm": snapshot.metrics.ate_cm,
-        "rmse_cm": snapshot.metrics.rmse_cm,
+        **accuracy,
+        "keyframe_ate_rmse_cm": snapshot.metrics.ate_cm,
+        "keyframe_rmse_cm": snapshot.metrics.rmse_cm,
         "planes": len(snapshot.planes),
         "points": len(snapshot.points),
         "lines": len(snapshot.lines),
@@ -204,9 +294,10 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
         "timing_ms": stereo_timing(steps),
         "messages": messages,
     }
-    _write_outputs(args.out, snapshot, metrics)
+    _write_outputs(args.out, snapshot, metrics, frames=frames.estimate, groundtruth=evaluated)
     per_frame = metrics["timing_ms"]["total_per_frame"]
-    print(f"{engine.frames} frames, {metrics['keyframes']} keyframes, {args.variant}: ATE {_cm(snapshot.metrics.ate_cm)} (SE3-aligned), "
-          f"RMSE {_cm(snapshot.metrics.rmse_cm)}, {len(snapshot.planes)} planes, {lost} lost frames, {reinitializations} re-initializations; "
-          f"{per_frame:.1f} ms per frame; wrote {args.out}/trajectory.txt, metrics.json, map.ply")
+    print(f"{engine.frames} frames, {metrics['keyframes']} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned, "
+          f"{metrics['frames_evaluated']} frames), RMSE {_cm(metrics['rmse_cm'])}, {len(snapshot.planes)} planes, {lost} lost frames, "
+          f"{reinitializations} re-initializations; {per_frame:.1f} ms per frame; "
+          f"wrote {args.out}/trajectory.txt, keyframes.txt, groundtruth.txt, metrics.json, map.ply")
     return 0

@@ -148,6 +148,103 @@ def ate_rmse(
     return trajectory_error(p_est_world, p_gt_world, align=align).rmse_m
 
 
+@dataclasses.dataclass(frozen=True)
+class RelativeError:
+    """Statistics of relative translation errors over `pairs` pose pairs, in metres per
+    pair (pairs about `delta_m` metres of travelled path apart; NaN without pairs)."""
+
+    rmse_m: float
+    mean_m: float
+    median_m: float
+    max_m: float
+    pairs: int
+    delta_m: float
+
+    @property
+    def rmse_cm_per_m(self) -> float:
+        """RMSE in centimetres per metre travelled: 100 rmse_m / delta_m."""
+        return 100.0 * self.rmse_m / self.delta_m
+
+
+def path_delta_pairs(p_world: np.ndarray, delta_m: float) -> np.ndarray:
+    """Consecutive index pairs `(i, j)` (K, 2) along a trajectory, each ending where the path
+    travelled since the pair's start first reaches `delta_m` metres; the next pair starts
+    there. This is evo's ``filter_pairs_by_path`` (``evo_rpe --delta D --delta_unit m``,
+    consecutive pairs).
+
+    Args:
+        p_world: (N, 3) positions in metres, in time order.
+        delta_m: path length per pair in metres, more than 0.
+    """
+    if not delta_m > 0.0:
+        raise ValueError(f"delta_m must be positive, got {delta_m}")
+    p = np.asarray(p_world, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"p_world must have shape (N, 3), got {p.shape}")
+    ids = [0] if len(p) else []
+    path = 0.0
+    for i in range(1, len(p)):
+        path += float(np.linalg.norm(p[i] - p[i - 1]))
+        if path >= delta_m:
+            ids.append(i)
+            path = 0.0
+    return np.array(list(zip(ids, ids[1:])), dtype=np.int64).reshape(-1, 2)
+
+
+def relative_pose_error(
+    R_est_world: np.ndarray,
+    t_est_world: np.ndarray,
+    R_gt_world: np.ndarray,
+    t_gt_world: np.ndarray,
+    *,
+    delta_m: float = 1.0,
+    pairs_from: Literal["estimate", "ground_truth"] = "estimate",
+) -> RelativeError:
+    """Translational relative pose error per `delta_m` metres travelled.
+
+    For each pair ``(i, j)`` of :func:`path_delta_pairs` (path measured on the estimate by
+    default, as evo does unless ``--pairs_from_reference``), the error pose is
+    ``E = (Q_i⁻¹ Q_j)⁻¹ (P_i⁻¹ P_j)`` with ``Q`` the ground-truth and ``P`` the estimated
+    poses ``T_world_camera``; the error is ``‖translation(E)‖``. This is evo's
+    ``evo_rpe tum GT EST --delta 1 --delta_unit m`` (translation part, consecutive pairs)
+    for ``delta_m = 1``. Relative poses do not change under a rigid alignment of the
+    estimate, so none is applied.
+
+    Args:
+        R_est_world, t_est_world: (N, 3, 3) and (N, 3) estimated poses, metres.
+        R_gt_world, t_gt_world: (N, 3, 3) and (N, 3) ground-truth poses of the same instants.
+        delta_m: path length per pair in metres.
+        pairs_from: trajectory whose path selects the pairs.
+    """
+    p_est, p_gt = _validate_pair(t_est_world, t_gt_world, "t_est_world", "t_gt_world", 1)
+    R_est = np.asarray(R_est_world, dtype=np.float64)
+    R_gt = np.asarray(R_gt_world, dtype=np.float64)
+    for name, R in (("R_est_world", R_est), ("R_gt_world", R_gt)):
+        if R.shape != (len(p_est), 3, 3):
+            raise ValueError(f"{name} must have shape ({len(p_est)}, 3, 3), got {R.shape}")
+    if pairs_from not in ("estimate", "ground_truth"):
+        raise ValueError(f"pairs_from must be 'estimate' or 'ground_truth', got {pairs_from!r}")
+    pairs = path_delta_pairs(p_est if pairs_from == "estimate" else p_gt, delta_m)
+    if len(pairs) == 0:
+        nan = float("nan")
+        return RelativeError(nan, nan, nan, nan, 0, float(delta_m))
+    i, j = pairs[:, 0], pairs[:, 1]
+    # Relative motions T_i⁻¹ T_j: rotation R_iᵀ R_j, translation R_iᵀ (t_j - t_i).
+    Rq = np.einsum("nki,nkj->nij", R_gt[i], R_gt[j])
+    tq = np.einsum("nki,nk->ni", R_gt[i], p_gt[j] - p_gt[i])
+    tp = np.einsum("nki,nk->ni", R_est[i], p_est[j] - p_est[i])
+    # E = Q_rel⁻¹ P_rel: its translation is Rqᵀ (tp - tq).
+    errors = np.linalg.norm(np.einsum("nki,nk->ni", Rq, tp - tq), axis=1)
+    return RelativeError(
+        rmse_m=_rmse(errors),
+        mean_m=float(np.mean(errors)),
+        median_m=float(np.median(errors)),
+        max_m=float(np.max(errors)),
+        pairs=int(len(pairs)),
+        delta_m=float(delta_m),
+    )
+
+
 def _rmse(errors: np.ndarray) -> float:
     return float(np.sqrt(np.mean(errors**2)))
 

@@ -59,6 +59,24 @@ class Trajectory:
 
 
 @dataclasses.dataclass(frozen=True)
+class FrameTrajectory:
+    """Every tracked frame's pose (ORB-SLAM's CameraTrajectory): frame `i`'s pose is
+    `T_world_refkf · T_refkf_frame`, its reference keyframe's latest estimate times the
+    relative pose measured when the frame was tracked. Lost frames (no pose) are absent.
+    Built on request at the end of a run (never part of a snapshot: it grows with every
+    frame). `ground_truth` has NaN rows for frames without ground truth."""
+
+    frame: np.ndarray            # (F,) frame index in the source, increasing
+    reference_keyframe: np.ndarray  # (F,) keyframe index each pose is relative to
+    is_keyframe: np.ndarray      # (F,) bool: the frame became that keyframe
+    estimate: Trajectory         # (F,) T_world_camera, timestamps ns
+    ground_truth: Trajectory     # (F,) T_world_camera (NaN: none)
+
+    def __len__(self) -> int:
+        return int(self.frame.shape[0])
+
+
+@dataclasses.dataclass(frozen=True)
 class PointLandmarks:
     """Triangulated points: world positions (m), plane id (-1: none), anchor keyframe, and
     the state of the last detection that tested them (NOT_TESTED / INLIER / OUTLIER)."""

@@ -33,6 +33,12 @@ When a frame has features but neither tracking nor relocalization succeeds, the 
 re-initialized at the predicted pose: a new keyframe starts a new map segment (the window
 never reaches back across it), and the snapshot reports it. Frames without features (black
 frames) are lost and predicted until features return.
+
+Per-frame trajectory (as ORB-SLAM's CameraTrajectory): every tracked frame keeps its pose
+relative to its reference keyframe (the newest keyframe when it was tracked; a keyframe is
+its own reference), so its world pose follows the keyframes' later optimization:
+`T_world_frame = T_world_refkf · T_refkf_frame` (:meth:`StereoEngine.frame_trajectory`).
+Lost frames have no pose and are not recorded; a re-initialization frame becomes a keyframe.
 """
 
 from __future__ import annotations
@@ -62,6 +68,7 @@ from backend.pipeline.engine import EndOfSequence
 from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED, draw_keyframe_image
 from backend.pipeline.snapshot import (
     Detection,
+    FrameTrajectory,
     KeyframeImage,
     LineLandmarks,
     Metrics,
@@ -264,6 +271,11 @@ class StereoEngine:
         self._t_gt = RowBuffer((3,))
         self._stamp = RowBuffer((), dtype=np.int64)
         self._kf_frame = RowBuffer((), dtype=np.int64)
+        # Every tracked frame: its index, reference keyframe and pose T_refkf_frame.
+        self._fr_frame = RowBuffer((), dtype=np.int64)
+        self._fr_ref = RowBuffer((), dtype=np.int64)
+        self._fr_R = RowBuffer((3, 3))
+        self._fr_t = RowBuffer((3,))
         self._obs: dict[int, _KeyframeObs] = {}
         self._points = _point_store()
         self._lines = _line_store()
@@ -323,6 +335,7 @@ class StereoEngine:
                     continue
             if reason:
                 break
+            self._record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
         return self._keyframe(i, left, right, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, message="; ".join(messages))
 
     def reoptimize(self) -> Snapshot:
@@ -335,6 +348,28 @@ class StereoEngine:
         timing["total"] = 1e3 * (time.perf_counter() - t0)
         self._last = self._snapshot(last.keyframe, last.detection, self._det_state, report, hessian, image=last.image, tracking=last.tracking, message=last.message)
         return self._last
+
+    def frame_trajectory(self) -> FrameTrajectory:
+        """Every tracked frame so far (lost frames left out), in frame order, at its pose
+        relative to its reference keyframe composed with that keyframe's latest estimate."""
+        ref = self._fr_ref[:].copy()
+        frame = self._fr_frame[:].copy()
+        R_kf, t_kf = self._R_est[ref], self._t_est[ref]
+        R = so3.project_to_so3(R_kf @ self._fr_R[:]) if len(ref) else np.zeros((0, 3, 3))
+        t = np.einsum("nij,nj->ni", R_kf, self._fr_t[:]) + t_kf
+        stamp = np.asarray(self.data_source.timestamps_ns, dtype=np.int64)[frame]
+        R_gt = np.full((len(frame), 3, 3), np.nan)
+        t_gt = np.full((len(frame), 3), np.nan)
+        if len(frame):
+            valid = np.asarray(self.data_source.ground_truth_valid, dtype=bool)[frame]
+            T = np.asarray(self.data_source.T_world_rect0)[frame[valid]]
+            R_gt[valid], t_gt[valid] = T[:, :3, :3], T[:, :3, 3]
+        kf_frame = self._kf_frame[:]
+        is_kf = kf_frame[ref] == frame
+        return FrameTrajectory(
+            frame=frozen(frame), reference_keyframe=frozen(ref), is_keyframe=frozen(is_kf),
+            estimate=Trajectory.of(stamp, R, t), ground_truth=Trajectory.of(stamp.copy(), R_gt, t_gt),
+        )
 
     def compare_hessians(self, variants: tuple[str, ...]) -> dict[str, HessianStructure]:
         if self._window is None:
@@ -349,6 +384,14 @@ class StereoEngine:
             T = self.data_source.T_world_rect0[i]
             return T[:3, :3].copy(), T[:3, 3].copy()
         return np.eye(3), np.zeros(3)
+
+    def _record_frame(self, i: int, ref: int, R: np.ndarray, t: np.ndarray) -> None:
+        """Frame i tracked at world pose (R, t): keep T_refkf_frame against keyframe `ref`."""
+        R_ref, t_ref = self._R_est[ref], self._t_est[ref]
+        self._fr_frame.append(i)
+        self._fr_ref.append(ref)
+        self._fr_R.append(R_ref.T @ R)
+        self._fr_t.append(R_ref.T @ (t - t_ref))
 
     def _remember_frame(self, i: int, R: np.ndarray, t: np.ndarray) -> None:
         self._frame_poses = (self._frame_poses + [(i, R, t)])[-2:]
@@ -527,6 +570,7 @@ class StereoEngine:
             self._t_gt.append(np.full(3, np.nan))
         self._stamp.append(int(self.data_source.timestamps_ns[i]))
         self._kf_frame.append(i)
+        self._record_frame(i, len(self._t_est) - 1, R, t)  # its own reference: identity
 
     def _observe(self, k: int, R: np.ndarray, t: np.ndarray, kp: Keypoints, stereo, local_p: np.ndarray, p_match: np.ndarray, segs: StereoSegments | None, local_l: np.ndarray, l_match: np.ndarray) -> tuple[_KeyframeObs, np.ndarray, np.ndarray]:  # noqa: ANN001
         """Record keyframe k's observations of map landmarks and create new ones from stereo."""

@@ -27,7 +27,8 @@ from app.run_command import stereo_timing
 CONSOLE_SCRIPT = pathlib.Path(sys.executable).parent / "coplanar"
 CONTRACT_TIMING = ("point_dm", "tracking", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame", "all_stages")
 METRICS_KEYS = ("source", "variant", "frames", "keyframes", "ate_rmse_cm", "rmse_cm", "planes", "points", "lines", "lost_frames",
-                "reinitializations", "timing_ms", "messages")
+                "reinitializations", "timing_ms", "messages", "trajectory_poses", "frames_tracked", "frames_evaluated",
+                "ate_sim3_rmse_cm", "rpe_cm_per_m", "rpe_delta_m", "rpe_pairs", "keyframe_ate_rmse_cm", "keyframe_rmse_cm")
 
 
 def _strict_json(text: str) -> dict:
@@ -93,9 +94,12 @@ def test_stereo_run_writes_trajectory_metrics_and_map(room_run: dict) -> None:
     assert timing["all_stages"]["total"] > timing["total_per_frame"]  # several frames per keyframe
 
     rows = np.loadtxt(out / "trajectory.txt", ndmin=2)
-    assert rows.shape == (metrics["keyframes"], 8)  # one pose per keyframe
+    assert rows.shape == (metrics["frames_tracked"], 8)  # one pose per tracked frame
+    assert metrics["frames_tracked"] == metrics["frames"] - metrics["lost_frames"]  # no re-initialization here
     assert rows[0, 0] == 0.0 and np.all(np.diff(rows[:, 0]) > 0)  # seconds, increasing
     np.testing.assert_allclose(np.linalg.norm(rows[:, 4:], axis=1), 1.0, atol=1e-6)
+    kf_rows = np.loadtxt(out / "keyframes.txt", ndmin=2)
+    assert kf_rows.shape == (metrics["keyframes"], 8)  # one pose per keyframe
 
     ply = PlyData.read(io.BytesIO((out / "map.ply").read_bytes()))
     assert ply["vertex"].count == metrics["points"] + 2 * metrics["lines"] + sum(len(f) for f in ply["face"]["vertex_indices"])
@@ -124,7 +128,8 @@ def test_point_variant_skips_line_detection(tmp_path: pathlib.Path) -> None:
     rc, _, err = _run(["--scene", "room", "--duration", "1.2", "--variant", "P-w", "--keyframes", "3", "--out", str(out)])
     assert rc == 0, err
     metrics = _strict_json((out / "metrics.json").read_text())
-    assert metrics["keyframes"] == 3 and len(np.loadtxt(out / "trajectory.txt", ndmin=2)) == 3
+    assert metrics["keyframes"] == 3 and len(np.loadtxt(out / "keyframes.txt", ndmin=2)) == 3
+    assert len(np.loadtxt(out / "trajectory.txt", ndmin=2)) == metrics["frames_tracked"] > 3
     assert metrics["timing_ms"]["line_dm"] is None and metrics["lines"] == 0
     assert metrics["timing_ms"]["plane_seg"] > 0 and metrics["timing_ms"]["plane_fit"] > 0
 
@@ -264,9 +269,14 @@ def test_monte_carlo_run_writes_trajectory_metrics_and_map(tmp_path: pathlib.Pat
     np.testing.assert_allclose(rows[:, 0], 0.1 * np.arange(15), atol=1e-9)  # seconds
     np.testing.assert_allclose(np.linalg.norm(rows[:, 4:], axis=1), 1.0, atol=1e-9)
     np.testing.assert_allclose(rows[0, 1:4], [0.0, -1.0, 0.0], atol=1e-9)  # keyframe 0 is the gauge
+    # No frames between keyframes: trajectory.txt is keyframes.txt, and says so.
+    np.testing.assert_array_equal(np.loadtxt(out / "keyframes.txt"), rows)
+    assert np.loadtxt(out / "groundtruth.txt").shape == (15, 8)
 
     metrics = _strict_json((out / "metrics.json").read_text())
     assert metrics["variant"] == "PL-w" and metrics["frames"] == 15 and metrics["keyframes"] == 15
+    assert metrics["frames_tracked"] == metrics["frames_evaluated"] == 15 and "keyframes" in metrics["trajectory_poses"]
+    assert math.isclose(metrics["ate_rmse_cm"], metrics["keyframe_ate_rmse_cm"], rel_tol=1e-6, abs_tol=1e-9)
     assert np.isfinite(metrics["ate_rmse_cm"]) and 0.0 <= metrics["ate_rmse_cm"] < 50.0
     timing = metrics["timing_ms"]
     for key in ("point_dm", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame"):

@@ -12,6 +12,8 @@ from scipy.spatial.transform import Rotation
 from backend.eval.trajectory import (
     TrajectoryError,
     ate_rmse,
+    path_delta_pairs,
+    relative_pose_error,
     trajectory_error,
     translational_rmse,
     umeyama_alignment,
@@ -293,3 +295,59 @@ def test_matches_evo_reference(with_scale: bool) -> None:
     ref_ate = np.sqrt(np.mean(np.sum((_apply(ref_rot, ref_t, ref_s, p_est) - p_gt) ** 2, axis=1)))
     align = "sim3" if with_scale else "se3"
     assert ate_rmse(p_est, p_gt, align=align) == pytest.approx(ref_ate, abs=1e-9)
+
+
+def _random_poses(rng: np.random.Generator, n: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3, 3) rotations and (n, 3) positions of a random walk, steps of about 10 cm."""
+    t = np.cumsum(rng.normal(scale=0.06, size=(n, 3)), axis=0)
+    R = Rotation.from_rotvec(np.cumsum(rng.normal(scale=0.05, size=(n, 3)), axis=0)).as_matrix()
+    return R, t
+
+
+def test_path_delta_pairs() -> None:
+    p = np.zeros((7, 3))
+    p[:, 0] = [0.0, 0.5, 1.0, 1.25, 1.75, 2.0, 2.25]  # exact in binary
+    np.testing.assert_array_equal(path_delta_pairs(p, 1.0), [[0, 2], [2, 5]])
+    assert path_delta_pairs(p[:2], 1.0).shape == (0, 2)
+    with pytest.raises(ValueError):
+        path_delta_pairs(p, 0.0)
+
+
+def test_relative_pose_error_is_zero_for_a_rigidly_moved_estimate() -> None:
+    rng = np.random.default_rng(50)
+    R, t = _random_poses(rng)
+    rotation, translation, _ = _random_similarity(rng)
+    rpe = relative_pose_error(rotation @ R, _apply(rotation, translation, 1.0, t), R, t, delta_m=1.0)
+    assert rpe.pairs >= 3 and rpe.rmse_m < 1e-12 and rpe.delta_m == 1.0
+
+
+def test_relative_pose_error_without_pairs_is_nan() -> None:
+    R, t = _random_poses(np.random.default_rng(51), n=3)
+    rpe = relative_pose_error(R, t, R, t, delta_m=100.0)
+    assert rpe.pairs == 0 and np.isnan(rpe.rmse_m) and np.isnan(rpe.rmse_cm_per_m)
+
+
+@pytest.mark.parametrize("pairs_from", ["estimate", "ground_truth"])
+def test_relative_pose_error_matches_evo_rpe(pairs_from: str) -> None:
+    """evo_rpe --delta 1 --delta_unit m (translation part, consecutive pairs), test-time only."""
+    evo_metrics = pytest.importorskip("evo.core.metrics")
+    from evo.core.trajectory import PosePath3D
+
+    rng = np.random.default_rng(52)
+    R_gt, t_gt = _random_poses(rng)
+    noise = Rotation.from_rotvec(rng.normal(scale=0.01, size=(len(R_gt), 3))).as_matrix()
+    R_est, t_est = R_gt @ noise, t_gt + rng.normal(scale=0.02, size=t_gt.shape)
+
+    def path(R: np.ndarray, t: np.ndarray) -> PosePath3D:
+        T = np.tile(np.eye(4), (len(R), 1, 1))
+        T[:, :3, :3], T[:, :3, 3] = R, t
+        return PosePath3D(poses_se3=list(T))
+
+    ref = evo_metrics.RPE(evo_metrics.PoseRelation.translation_part, delta=1.0, delta_unit=evo_metrics.Unit.meters,
+                          all_pairs=False, pairs_from_reference=pairs_from == "ground_truth")
+    ref.process_data((path(R_gt, t_gt), path(R_est, t_est)))
+    rpe = relative_pose_error(R_est, t_est, R_gt, t_gt, delta_m=1.0, pairs_from=pairs_from)
+    assert rpe.pairs == len(ref.error) >= 3
+    assert rpe.rmse_m == pytest.approx(ref.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-9)
+    assert rpe.max_m == pytest.approx(ref.get_statistic(evo_metrics.StatisticsType.max), rel=1e-9)
+    assert rpe.rmse_cm_per_m == pytest.approx(100.0 * rpe.rmse_m)

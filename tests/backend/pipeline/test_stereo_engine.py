@@ -162,6 +162,12 @@ def test_black_frames_are_reported_and_the_run_recovers() -> None:
     after = [s for s in snapshots if s.timestamp_ns > source.timestamps_ns[50]]
     assert len(after) >= 3 and after[-1].tracking.tracked_points > 100
     assert np.isfinite(snapshots[-1].metrics.ate_cm)
+    # Lost frames have no pose: the per-frame trajectory leaves them out (a re-initialization
+    # frame becomes a keyframe and has one).
+    frames = engine.frame_trajectory()
+    reinitializations = sum(s.tracking.reinitializations for s in snapshots)
+    assert len(frames) == engine.frames - lost + reinitializations
+    assert not set(range(30, 50)) & set(frames.frame.tolist())
 
 
 def test_sudden_large_motion_is_survived() -> None:
@@ -180,3 +186,50 @@ def test_settings_are_checked() -> None:
         StereoSettings(variant="PL-x")
     with pytest.raises(ValueError):
         StereoSettings(window=1)
+
+
+def _inverse_compose(R_a: np.ndarray, t_a: np.ndarray, R_b: np.ndarray, t_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """T_a⁻¹ T_b for stacks of poses."""
+    return np.einsum("nki,nkj->nij", R_a, R_b), np.einsum("nki,nk->ni", R_a, t_b - t_a)
+
+
+def test_frame_trajectory_follows_the_reference_keyframes() -> None:
+    """Every tracked frame has a pose; keyframes are their own reference; a frame's pose
+    relative to its reference keyframe stays fixed while the window moves the keyframe."""
+    source = _sequence(3.0)
+    engine = StereoEngine(source, settings=StereoSettings(variant="PL-w", image_scale=None, hessian=False))
+    snapshots = [engine.step() for _ in range(3)]
+    early = engine.frame_trajectory()
+    early_kf = snapshots[-1].estimate
+    snapshots += _run(engine)
+    final = engine.frame_trajectory()
+    est, kf = final.estimate, snapshots[-1].estimate
+
+    assert len(final) == engine.frames == len(source)  # nothing lost on the room
+    np.testing.assert_array_equal(final.frame, np.arange(len(source)))
+    np.testing.assert_array_equal(est.timestamp_ns, source.timestamps_ns)
+    assert np.all(np.diff(final.reference_keyframe) >= 0)
+    # Keyframes: their own reference, at the keyframe estimate.
+    assert int(final.is_keyframe.sum()) == len(kf)
+    np.testing.assert_array_equal(final.reference_keyframe[final.is_keyframe], np.arange(len(kf)))
+    np.testing.assert_array_equal(est.timestamp_ns[final.is_keyframe], kf.timestamp_ns)
+    np.testing.assert_allclose(est.t_world_camera[final.is_keyframe], kf.t_world_camera, atol=1e-12)
+    np.testing.assert_allclose(est.R_world_camera[final.is_keyframe], kf.R_world_camera, atol=1e-9)
+    # Every other frame: tracked after its reference keyframe, before the next one.
+    kf_frame = final.frame[final.is_keyframe]
+    ref_frame = kf_frame[final.reference_keyframe]
+    assert np.all(final.frame >= ref_frame)
+    nxt = np.append(kf_frame[1:], np.iinfo(np.int64).max)[final.reference_keyframe]
+    assert np.all(final.frame < nxt)
+    # Ground truth of every frame (the room has it everywhere).
+    np.testing.assert_allclose(final.ground_truth.t_world_camera, source.T_world_rect0[:, :3, 3])
+    # T_refkf_frame is constant; the world poses moved with the optimized keyframes.
+    n = len(early)
+    ref = early.reference_keyframe
+    assert not np.allclose(early_kf.t_world_camera[ref], kf.t_world_camera[ref], atol=1e-9, rtol=0)
+    rel_early = _inverse_compose(early_kf.R_world_camera[ref], early_kf.t_world_camera[ref], early.estimate.R_world_camera, early.estimate.t_world_camera)
+    rel_final = _inverse_compose(kf.R_world_camera[ref], kf.t_world_camera[ref], est.R_world_camera[:n], est.t_world_camera[:n])
+    np.testing.assert_allclose(rel_final[0], rel_early[0], atol=1e-9)
+    np.testing.assert_allclose(rel_final[1], rel_early[1], atol=1e-9)
+    R = est.R_world_camera
+    np.testing.assert_allclose(np.einsum("nki,nkj->nij", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
