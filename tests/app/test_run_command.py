@@ -333,3 +333,29 @@ def test_out_that_is_a_file_is_refused_and_kept(tmp_path: pathlib.Path, capsys: 
     assert cli.main(["run", "--scene", scene, "--variant", "P-w", "--out", str(target)]) == 2
     _one_error_line(capsys.readouterr().err, ["--out", "not a folder"])
     assert target.read_text() == "keep me"
+
+
+def test_stride_keeps_every_nth_frame_and_tracking_survives(tmp_path: pathlib.Path) -> None:
+    """`--stride 4`: 5 frames per second with four times the motion between frames (room:
+    up to about 10 cm and 4° per frame); every frame is tracked, without a re-initialization."""
+    out = tmp_path / "run"
+    assert cli.main(["run", "--scene", "room", "--duration", "8", "--stride", "4", "--variant", "PL-w", "--out", str(out)]) == 0
+    metrics = _strict_json((out / "metrics.json").read_text())
+    assert metrics["frames"] == 41  # t = 0, 0.2, …, 8 s
+    assert metrics["lost_frames"] == 0 and metrics["reinitializations"] == 0
+    assert metrics["frames_tracked"] == 41
+    assert metrics["ate_rmse_cm"] < 3.0
+    stamps = np.loadtxt(out / "trajectory.txt")[:, 0]
+    np.testing.assert_allclose(np.diff(stamps), 0.2, atol=1e-6)
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--scene", "room", "--stride", "0"], ["--stride", "0", "at least 1"]),
+    (["--scene", "mc-a", "--stride", "2"], ["--stride", "2", "mc-a"]),
+])
+def test_bad_stride_is_one_error_line(argv: list[str], words: list[str], tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["run", *argv, "--variant", "PL-w", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:")
+    assert all(w in err[0] for w in words)
+    assert not (tmp_path / "run").exists()
