@@ -67,6 +67,8 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
                    help=f"seconds of motion of a rendered scene (default {duration_default:g}; 20 frames per second)")
     p.add_argument("--stride", type=int, default=None, metavar="N",
                    help="rendered scenes: keep every N-th frame (20/N frames per second, N times the motion between frames; default 1)")
+    p.add_argument("--speed", type=float, default=None, metavar="F",
+                   help="rendered scenes: move along the same path F times faster (default 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the scene, its noise and the RANSACs (default 0)")
     p.add_argument("--mislabel", type=float, default=None,
                    help="mc-a / mc-b only: fraction of features with a wrong plane-instance label (default 0.1)")
@@ -116,7 +118,7 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
     if args.dataset is None and scene in MC_SCENES:
         from backend.pipeline.sim_engine import SimEngine, SimSettings
 
-        _refuse(args, f"the Monte-Carlo scene {scene} (no images)", ("--duration", "--frames", "--stride"))
+        _refuse(args, f"the Monte-Carlo scene {scene} (no images)", ("--duration", "--frames", "--stride", "--speed"))
         mislabel = 0.1 if args.mislabel is None else args.mislabel
         if not 0.0 <= mislabel <= 1.0:
             raise UsageError(f"--mislabel {args.mislabel}: must be a fraction in [0, 1]")
@@ -125,7 +127,7 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
     if args.dataset is not None:
         from backend.data.euroc import EurocDataset
 
-        _refuse(args, "--dataset", ("--duration", "--mislabel", "--stride"))
+        _refuse(args, "--dataset", ("--duration", "--mislabel", "--stride", "--speed"))
         source = EurocDataset(args.dataset)  # DatasetError: one line naming the bad file
         name = f"EuRoC folder {args.dataset}"
     else:
@@ -135,17 +137,20 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
         stride = 1 if getattr(args, "stride", None) is None else args.stride
         if stride < 1:
             raise UsageError(f"--stride {stride}: must be at least 1")
+        speed = 1.0 if getattr(args, "speed", None) is None else args.speed
+        if not (math.isfinite(speed) and 0.0 < speed <= 10.0):
+            raise UsageError(f"--speed {speed:g}: must be more than 0 and at most 10")
         duration = args.duration_default if args.duration is None else args.duration
         if not (math.isfinite(duration) and 0.0 < duration <= MAX_DURATION_S):
             raise UsageError(f"--duration {duration:g}: must be more than 0 and at most {MAX_DURATION_S:g} seconds")
         scene_obj = load_scene_argument(scene, other_names=tuple(MC_SCENES))
         try:
-            settings = SequenceSettings(duration_s=duration, seed=args.seed, camera_rate_hz=CAMERA_RATE_HZ / stride)
+            settings = SequenceSettings(duration_s=duration, seed=args.seed, camera_rate_hz=CAMERA_RATE_HZ / stride, speed=speed)
         except ValueError as e:
             raise UsageError(f"--duration {duration:g}: {e}") from None
         source = SyntheticSequence(scene_obj, settings=settings)  # frames rendered on demand
         label = scene if scene == scene_obj.name else f"{scene_obj.name} from {scene}"
-        name = f"rendered scene {label} ({duration:g} s, seed {args.seed}{f', every {stride}th frame' if stride > 1 else ''})"
+        name = f"rendered scene {label} ({duration:g} s, seed {args.seed}{f', every {stride}th frame' if stride > 1 else ''}{f', {speed:g}× speed' if speed != 1.0 else ''})"
     if frames is not None:
         source = FirstFrames(source, frames)
     return _stereo_engine(source, name, args, headless=headless)

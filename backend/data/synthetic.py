@@ -30,10 +30,15 @@ T_BODY_CAM0[:3, :3] = R_BODY_CAMERA_FORWARD
 T_BODY_CAM0[:3, 3] = [0.05, CAMERA.baseline / 2.0, 0.0]  # the stereo pair is centred on the IMU
 
 
+# The rendered trajectories' lowest motion frequency at speed 1 (motion.random_trajectory's default).
+BASE_FREQUENCY_HZ = 0.04
+
+
 @dataclasses.dataclass(frozen=True)
 class SequenceSettings:
     """What to render: `duration_s` seconds at `camera_rate_hz` / `imu_rate_hz`; the
-    trajectory, IMU noise and image effects are drawn from `seed`. Image effects: Gaussian
+    trajectory, IMU noise and image effects are drawn from `seed`; `speed` traverses the same
+    path that many times faster (every channel's frequencies scaled). Image effects: Gaussian
     noise of `image_noise` grey levels, blur of `blur_px` pixels, and an exposure gain
     varying by ±`exposure` (relative) with a 7 s period."""
 
@@ -45,10 +50,13 @@ class SequenceSettings:
     image_noise: float = 0.0
     blur_px: float = 0.0
     exposure: float = 0.0
+    speed: float = 1.0
 
     def __post_init__(self) -> None:
         if not self.duration_s > 0:
             raise ValueError("duration must be positive")
+        if not (np.isfinite(self.speed) and self.speed > 0):
+            raise ValueError("speed must be positive")
         if self.image_noise < 0 or self.blur_px < 0 or not 0 <= self.exposure < 1:
             raise ValueError("image noise and blur must be >= 0, exposure in [0, 1)")
 
@@ -73,7 +81,9 @@ class SyntheticSequence:
         self.T_body_cam0 = T_BODY_CAM0
         rng = np.random.default_rng([settings.seed, 0xDA7A])
         centre, half = scene.camera_region if scene.camera_region is not None else (np.array([0.0, 0.0, 1.4]), np.array([1.0, 1.0, 0.2]))
-        self.trajectory = random_trajectory(rng, centre=np.asarray(centre, float), half_extent=np.asarray(half, float), height=0.0)
+        self.trajectory = random_trajectory(
+            rng, centre=np.asarray(centre, float), half_extent=np.asarray(half, float), height=0.0, base_frequency_hz=BASE_FREQUENCY_HZ * settings.speed
+        )
         period_ns = int(round(1e9 / settings.camera_rate_hz))
         self.timestamps_ns = np.arange(0, int(settings.duration_s * 1e9) + 1, period_ns, dtype=np.int64)
         self.imu_true = imu_samples(self.trajectory, start_ns=0, end_ns=int(self.timestamps_ns[-1]), rate_hz=settings.imu_rate_hz)

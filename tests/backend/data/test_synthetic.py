@@ -107,3 +107,21 @@ def test_on_demand_sequence_matches_the_written_folder(room: pathlib.Path) -> No
         np.testing.assert_array_equal(right, file_right)
     with pytest.raises(IndexError):
         seq.views(len(seq))
+
+
+def test_speed_moves_along_the_same_path_faster() -> None:
+    """`speed` F: the pose at time t is the speed-1 pose at time F·t (same path, F times faster),
+    and the rate of the cameras (hence the motion between frames) follows."""
+    from backend.data.synthetic import SyntheticSequence
+
+    scene = builtin_scene("room")
+    slow = SyntheticSequence(scene, settings=SequenceSettings(duration_s=4.0))
+    fast = SyntheticSequence(scene, settings=SequenceSettings(duration_s=2.0, speed=2.0))
+    t = np.linspace(0.0, 2.0, 9)
+    np.testing.assert_allclose(fast.trajectory.position(t), slow.trajectory.position(2.0 * t), atol=1e-12)
+    np.testing.assert_allclose(fast.trajectory.rotation(t), slow.trajectory.rotation(2.0 * t), atol=1e-12)
+    path = lambda s: np.linalg.norm(np.diff(s.trajectory.position(s.timestamps_ns * 1e-9), axis=0), axis=1).sum()  # noqa: E731
+    assert len(fast.timestamps_ns) == 41 and len(slow.timestamps_ns) == 81
+    assert path(fast) == pytest.approx(path(slow), rel=1e-3)  # the same path in half the frames
+    with pytest.raises(ValueError):
+        SequenceSettings(speed=0.0)
