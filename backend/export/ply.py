@@ -52,7 +52,7 @@ def snapshot_ply_bytes(snapshot: Snapshot) -> bytes:
         PlyElement.describe(edge, "edge"),
         PlyElement.describe(face, "face", val_types={"vertex_indices": "i4"}, len_types={"vertex_indices": "u1"}),
     ]
-    comments = [f"coplanar map: {snapshot.source}", f"keyframe {snapshot.keyframe}, variant {snapshot.variant}", "world frame, metres, z up"]
+    comments = [_ascii(f"coplanar map: {snapshot.source}"), f"keyframe {snapshot.keyframe}, variant {snapshot.variant}", "world frame, metres, z up"]
     buffer = io.BytesIO()
     PlyData(elements, text=False, byte_order="<", comments=comments).write(buffer)
     return buffer.getvalue()
@@ -61,3 +61,9 @@ def snapshot_ply_bytes(snapshot: Snapshot) -> bytes:
 def write_ply(path: pathlib.Path | str, snapshot: Snapshot) -> None:
     """Write :func:`snapshot_ply_bytes` to `path`."""
     pathlib.Path(path).write_bytes(snapshot_ply_bytes(snapshot))
+
+
+def _ascii(text: str) -> str:
+    """A PLY header comment: ASCII on one line (the source names a folder or a scene, which
+    may hold any character; non-ASCII ones become backslash escapes)."""
+    return " ".join(text.encode("ascii", "backslashreplace").decode("ascii").split())

@@ -125,3 +125,12 @@ def test_write_ply_writes_the_same_bytes(snapshot: Snapshot, tmp_path: pathlib.P
     assert path.read_bytes() == snapshot_ply_bytes(snapshot)
     write_ply(str(tmp_path / "again.ply"), snapshot)
     assert (tmp_path / "again.ply").read_bytes() == path.read_bytes()
+
+
+def test_any_source_name_becomes_an_ascii_comment(snapshot: Snapshot) -> None:
+    """The source names a scene or a folder (`2× speed`, a path with accents or a newline):
+    the header stays ASCII on one line per comment and the map is written."""
+    named = dataclasses.replace(snapshot, source="rendered scene room (2× speed) in /données/é\nnext")
+    ply = PlyData.read(io.BytesIO(snapshot_ply_bytes(named)))
+    assert ply.comments[0] == "coplanar map: rendered scene room (2\\xd7 speed) in /donn\\xe9es/\\xe9 next"
+    assert len(ply["vertex"].data) == len(snapshot.points) + 2 * len(snapshot.lines) + sum(len(p.hull_world) for p in snapshot.planes if len(p.hull_world) >= 3)
