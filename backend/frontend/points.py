@@ -128,6 +128,20 @@ def hamming_distances(desc_a: np.ndarray, desc_b: np.ndarray) -> np.ndarray:
     return pair_hamming(desc_a[:, None, :], desc_b[None, :, :]) if len(desc_a) and len(desc_b) else np.zeros((len(desc_a), len(desc_b)), np.int32)
 
 
+def nearest_hamming(desc_a: np.ndarray, desc_b: np.ndarray, *, k: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The `k` nearest descriptors of `desc_b` (Nb, B) for each of `desc_a` (Na, B) uint8
+    by Hamming distance (OpenCV's brute-force matcher: the same distances as
+    :func:`hamming_distances`, about ten times faster for a map against a frame).
+    Returns candidate pairs `(rows, cols, dist)` (P,) each, nearest first within a row."""
+    import cv2
+
+    if len(desc_a) == 0 or len(desc_b) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int32)
+    found = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(np.ascontiguousarray(desc_a, np.uint8), np.ascontiguousarray(desc_b, np.uint8), k=k)
+    pairs = np.array([(m.queryIdx, m.trainIdx, m.distance) for row in found for m in row], dtype=np.int64).reshape(-1, 3)
+    return pairs[:, 0], pairs[:, 1], pairs[:, 2].astype(np.int32)
+
+
 def best_matches(rows: np.ndarray, cols: np.ndarray, dist: np.ndarray, *, n_rows: int, max_distance: float, ratio: float) -> np.ndarray:
     """Match of each row (index of its column, -1: none) among candidate pairs (`rows`,
     `cols`) (P,) with distances `dist` (P,): the closest column if its distance is `<=

@@ -190,13 +190,13 @@ def relocalize(
     outlier), or None with fewer than `min_inliers` inliers."""
     import cv2
 
-    from backend.frontend.points import best_matches, hamming_distances
+    from backend.frontend.points import best_matches, nearest_hamming
 
     if len(p_world) < min_inliers or len(keypoints_uv) < min_inliers:
         return None
-    dist = hamming_distances(descriptors, keypoint_descriptors)
-    rows, cols = np.nonzero(dist <= max_hamming)
-    match = best_matches(rows, cols, dist[rows, cols], n_rows=len(p_world), max_distance=max_hamming, ratio=ratio)
+    rows, cols, dist = nearest_hamming(descriptors, keypoint_descriptors, k=2)  # the ratio test needs the two nearest
+    near = dist <= max_hamming
+    match = best_matches(rows[near], cols[near], dist[near], n_rows=len(p_world), max_distance=max_hamming, ratio=ratio)
     i = np.flatnonzero(match >= 0)
     if len(i) < min_inliers:
         return None
