@@ -250,6 +250,7 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
     steps: list[tuple[int, dict[str, float]]] = []
     messages: list[str] = []
     lost = reinitializations = 0
+    reasons: dict[str, int] = {}
     snapshot = None
     bar = tqdm(total=total_frames, desc=f"run {args.variant}", unit="frame", file=sys.stderr, disable=None, dynamic_ncols=True)
     engine.on_frame = lambda _index: bar.update(1)
@@ -263,6 +264,7 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
             steps.append((tracking.frames, dict(snapshot.report.timing_ms)))
             lost += tracking.lost_frames
             reinitializations += tracking.reinitializations
+            reasons[tracking.keyframe_reason] = reasons.get(tracking.keyframe_reason, 0) + 1
             if snapshot.message:
                 messages.append(f"keyframe {snapshot.keyframe}: {snapshot.message}")
                 bar.write(f"keyframe {snapshot.keyframe}: {snapshot.message}", file=sys.stderr)
@@ -291,6 +293,7 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
         "lines": len(snapshot.lines),
         "lost_frames": lost,
         "reinitializations": reinitializations,
+        "keyframe_reasons": reasons,
         "timing_ms": stereo_timing(steps),
         "messages": messages,
     }

@@ -61,4 +61,5 @@ def tracking_markdown(tracking: Tracking | None) -> str:
         f"**tracking** since the previous keyframe: {t.frames} frames · {t.lost_frames} lost · "
         f"{t.reinitializations} re-initializations  \n"
         f"tracked on the keyframe: {t.tracked_points} points · {t.tracked_lines} lines"
+        + (f"  \nkeyframe by: {t.keyframe_reason}" if t.keyframe_reason else "")
     )

@@ -180,13 +180,16 @@ class KeyframeImage:
 class Tracking:
     """Tracking since the previous snapshot: frames processed (keyframe included), frames
     whose pose could not be tracked (predicted by the motion model instead), map
-    re-initializations after a loss, and the tracked points / lines of the keyframe."""
+    re-initializations after a loss, the tracked points / lines of the keyframe, and why
+    the frame became a keyframe ("first frame", "rule", "fallback", "fast motion",
+    "re-initialization"; see StereoSettings)."""
 
     frames: int
     lost_frames: int
     reinitializations: int
     tracked_points: int
     tracked_lines: int
+    keyframe_reason: str = ""
 
 
 @dataclasses.dataclass(frozen=True)

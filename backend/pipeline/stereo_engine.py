@@ -8,11 +8,16 @@ until the next keyframe and returns its snapshot.
 
 Every frame: ORB on the left image (point D&M), the pose predicted by a constant-velocity
 motion model, map points of the local map (those the window's keyframes see) matched by
-projection and the pose refined against them with a Cauchy kernel; when that finds too few
-inliers, relocalization by PnP-RANSAC against the local map; when that fails too, the frame
-is *lost* (its pose is the prediction). The paper's keyframe rule (at least 20 frames since
-the last keyframe, more than 40 tracked points, at least 10 % new keypoints) with a quality
-fallback (tracked points below a share of the last keyframe's).
+projection and the pose refined against them with a Cauchy kernel. When that finds too few
+inliers (the motion model failed: fast or suddenly changing motion), four candidates are
+tried and the one with the most inliers wins: a three times wider search around the
+prediction, the same around the last frame's pose, and PnP-RANSAC on descriptor matches
+with the last keyframe's points and with the whole local map; when none has enough
+inliers, the frame is *lost* (its pose is the prediction). The paper's keyframe rule (at
+least 20 frames since the last keyframe, more than 40 tracked points, at least 10 % new
+keypoints) with a quality fallback (tracked points below a share of the last keyframe's)
+and a fast-motion rule (less than half of the tracked points would stay in view at the
+next frame's predicted pose).
 
 Every keyframe:
 1. stereo matching of its ORB points (right image), LSD + LBD segments in both images,
@@ -108,7 +113,10 @@ class StereoSettings:
     Keyframes: the paper's rule, at least `min_keyframe_gap` frames since the last keyframe,
     more than `min_tracked_points` tracked points and at least `min_new_fraction` of the
     keypoints new; or the fallback, after at least `min_fallback_gap` frames, fewer tracked
-    points than `fallback_tracked_ratio` times the last keyframe's map points.
+    points than `fallback_tracked_ratio` times the last keyframe's map points; or, under
+    fast motion, when fewer than `min_kept_in_view` of the frame's tracked points would stay
+    in the image at the pose the motion model predicts for the next frame (the next frame
+    would see too little of the map to be tracked).
     Tracking: projection search radius `search_radius_px` (then `refine_radius_px` around the
     refined pose), ORB Hamming distance `<= max_hamming` and ratio `match_ratio`; a pose
     needs `min_tracking_inliers` inliers. Landmarks: stereo depth in [`min_depth_m`,
@@ -132,6 +140,7 @@ class StereoSettings:
     min_new_fraction: float = 0.1
     min_fallback_gap: int = 2
     fallback_tracked_ratio: float = 0.6
+    min_kept_in_view: float = 0.5
     search_radius_px: float = 15.0
     refine_radius_px: float = 4.0
     max_hamming: int = 60
@@ -336,7 +345,7 @@ class StereoEngine:
             if reason:
                 break
             self._record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
-        return self._keyframe(i, left, right, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, message="; ".join(messages))
+        return self._keyframe(i, left, right, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, message="; ".join(messages), reason=reason)
 
     def reoptimize(self) -> Snapshot:
         if self._last is None:
@@ -418,28 +427,54 @@ class StereoEngine:
         if len(ids) == 0 or len(kp.uv) == 0:
             return _Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
         P, D = self._points.p_world[ids], self._points.desc[ids]
-        result = None
-        for radius in (s.search_radius_px, 3.0 * s.search_radius_px):
-            match = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=radius, max_hamming=s.max_hamming, ratio=s.match_ratio)
-            result = self._refine(R, t, P, D, kp, match)
-            if result.ok:
-                return result
-        reloc = relocalize(cam, P, D, kp.uv, kp.descriptors, max_hamming=s.max_hamming, ratio=s.match_ratio, min_inliers=s.min_tracking_inliers, seed=s.seed + i)
-        if reloc is not None:
-            result = self._refine(reloc[0], reloc[1], P, D, kp, reloc[2])
-            if result.ok:
-                self._messages.append(f"frame {i}: relocalized by PnP against the local map")
-                return result
+        match = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
+        result = self._refine(R, t, P, D, kp, match)
+        if result.ok:
+            return result
+        # The motion model failed (a sudden change of motion). Candidates: a three times
+        # wider search around the prediction, the same around the last frame's pose, and
+        # PnP-RANSAC on the last keyframe's points and on the whole local map by descriptor.
+        # The one with the most inliers wins: in repeated texture a wide search or a subset
+        # of the map can agree on a wrong pose with enough inliers to pass.
+        candidates: list[tuple[_Tracked, str]] = []
+        priors = [(R, t, "")]
+        if len(self._frame_poses) == 2:  # (with one frame, the prediction is that frame's pose)
+            priors.append((self._frame_poses[-1][1], self._frame_poses[-1][2], "tracked from the last frame's pose (the motion model failed)"))
+        for R0, t0, how in priors:
+            match = match_by_projection(cam, R0, t0, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
+            candidates.append((self._refine(R0, t0, P, D, kp, match), how))
+        for what, subset in (("the last keyframe", self._last_keyframe_points()), ("the local map", np.arange(len(ids)))):
+            if len(subset) < s.min_tracking_inliers:
+                continue
+            reloc = relocalize(cam, P[subset], D[subset], kp.uv, kp.descriptors, max_hamming=s.max_hamming, ratio=s.match_ratio, min_inliers=s.min_tracking_inliers, seed=s.seed + i)
+            if reloc is not None:
+                match = np.full(len(ids), -1, np.int64)
+                match[subset] = reloc[2]
+                candidates.append((self._refine(reloc[0], reloc[1], P, D, kp, match, widen=True), f"relocalized by PnP against {what}"))
+        good = [c for c in candidates if c[0].ok]
+        if good:
+            best, how = max(good, key=lambda c: c[0].inliers)
+            if how:
+                self._messages.append(f"frame {i}: {how}")
+            return best
         return _Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
 
-    def _refine(self, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, match: np.ndarray) -> "_Tracked":
-        """Refine from `match`; where that leaves fewer than twice the inliers needed, search
-        again around the refined pose (`refine_radius_px`) and refine once more."""
+    def _last_keyframe_points(self) -> np.ndarray:
+        """Indices into the local map of the points the last keyframe observed."""
+        if not self._obs:
+            return np.zeros(0, np.int64)
+        seen = self._obs[self.keyframes - 1].point_id
+        return np.flatnonzero(np.isin(self._local_points, seen[self._points.ok[seen]]))
+
+    def _refine(self, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, match: np.ndarray, *, widen: bool = False) -> "_Tracked":
+        """Refine from `match`; where that leaves fewer than twice the inliers needed (always
+        with `widen`: a pose from a subset of the map), search again around the refined pose
+        (`refine_radius_px`) and refine once more."""
         s = self.settings
         cam = self.camera
         for radius in (None, s.refine_radius_px):
             if radius is not None:
-                if np.count_nonzero(match >= 0) >= 2 * s.min_tracking_inliers:
+                if not widen and np.count_nonzero(match >= 0) >= 2 * s.min_tracking_inliers:
                     break
                 match = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=radius, max_hamming=s.max_hamming, ratio=s.match_ratio)
             m = np.flatnonzero(match >= 0)
@@ -464,11 +499,29 @@ class StereoEngine:
             return "rule"
         if gap >= s.min_fallback_gap and tracked.inliers < s.fallback_tracked_ratio * self._last_kf_tracked:
             return "fallback"
+        if self._kept_in_view_next(i, tracked) < s.min_kept_in_view:
+            return "fast motion"
         return ""
+
+    def _kept_in_view_next(self, i: int, tracked: "_Tracked") -> float:
+        """Fraction of frame i's tracked map points that stay in the image (depth above
+        `min_depth_m`) at the next frame's pose as the constant-velocity model predicts it
+        from the previous frame and frame i. 1 without a previous frame."""
+        matched = np.flatnonzero(tracked.match >= 0)
+        if not self._frame_poses or len(matched) == 0:
+            return 1.0
+        j, R0, t0 = self._frame_poses[-1]
+        steps = 1.0 / max(i - j, 1)
+        R_next = so3.project_to_so3(tracked.R @ so3.exp(steps * so3.log(R0.T @ tracked.R)))
+        t_next = tracked.t + tracked.R @ (steps * (R0.T @ (tracked.t - t0)))
+        p_cam = (self._points.p_world[self._local_points[matched]] - t_next) @ R_next
+        front = p_cam[:, 2] > self.settings.min_depth_m
+        uv = self.camera.project(p_cam[front])
+        return float(np.count_nonzero(self.camera.in_image(uv))) / len(matched)
 
     # ------------------------------------------------------------------ keyframes
 
-    def _keyframe(self, i: int, left: np.ndarray, right: np.ndarray, kp: Keypoints, tracked: "_Tracked", timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, message: str) -> Snapshot:
+    def _keyframe(self, i: int, left: np.ndarray, right: np.ndarray, kp: Keypoints, tracked: "_Tracked", timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, message: str, reason: str) -> Snapshot:
         s = self.settings
         cam = self.camera
         with_lines, mode = parse_variant(self._variant)
@@ -554,7 +607,7 @@ class StereoEngine:
         total = 1e3 * (time.perf_counter() - t_start) - timing["load"] * frames_per  # reading or rendering images is not the pipeline's
         timing["total"] = total
         timing["total_per_frame"] = total / frames_per
-        tracking = Tracking(frames=frames, lost_frames=lost, reinitializations=reinitializations, tracked_points=int(np.count_nonzero(p_match >= 0)), tracked_lines=int(np.count_nonzero(l_match >= 0)))
+        tracking = Tracking(frames=frames, lost_frames=lost, reinitializations=reinitializations, tracked_points=int(np.count_nonzero(p_match >= 0)), tracked_lines=int(np.count_nonzero(l_match >= 0)), keyframe_reason=reason)
         self._last = self._snapshot(k, detection, self._det_state, report, hessian, image=image, tracking=tracking, message=message)
         return self._last
 
