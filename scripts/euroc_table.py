@@ -26,17 +26,35 @@ VARIANTS = ("P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w")
 DEFAULT_DATASET = ROOT.parent / "shared" / "data" / "euroc_mh01_slice"
 
 
-def run_one(dataset: pathlib.Path, variant: str) -> dict:
-    """`coplanar run` on `dataset` with `variant`; its metrics.json plus the wall time (s)."""
+def run_one(source: list[str], variant: str, *, keep: tuple[str, ...] = ()) -> dict:
+    """`coplanar run SOURCE --variant V` into a temporary folder, as a user runs it; its
+    metrics.json plus the wall time (s) and the text of the written files named in `keep`."""
     with tempfile.TemporaryDirectory() as out:
         t0 = time.perf_counter()
         subprocess.run(
-            [str(ROOT / ".venv" / "bin" / "coplanar"), "run", "--dataset", str(dataset), "--variant", variant, "--out", out],
-            check=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL,
+            [str(ROOT / ".venv" / "bin" / "coplanar"), "run", *source, "--variant", variant, "--out", out],
+            check=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )
         metrics = json.loads((pathlib.Path(out) / "metrics.json").read_text())
+        metrics["files"] = {name: (pathlib.Path(out) / name).read_text() for name in keep}
     metrics["wall_s"] = time.perf_counter() - t0
     return metrics
+
+
+def publish(results: dict, body: str, *, json_name: str, block: str, readme: bool) -> int:
+    """Write `results` to docs/pipeline/JSON_NAME, put the table `body` between README.md's
+    `<!-- BLOCK:start -->` and `<!-- BLOCK:end -->` (if `readme`) and print it; returns 0."""
+    out = ROOT / "docs" / "pipeline" / json_name
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(results, indent=2) + "\n")
+    if readme:
+        path = ROOT / "README.md"
+        text = path.read_text()
+        start, end = f"<!-- {block}:start -->", f"<!-- {block}:end -->"
+        i, j = text.index(start) + len(start), text.index(end)
+        path.write_text(text[:i] + "\n" + body + "\n" + text[j:])
+    print(body)
+    return 0
 
 
 def _f(value: float | None, digits: int = 2) -> str:
@@ -73,22 +91,12 @@ def main() -> int:
         return 2
     results = []
     for variant in VARIANTS:
-        r = run_one(args.dataset, variant)
+        r = run_one(["--dataset", str(args.dataset)], variant)
+        r.pop("files")
         results.append(r)
         print(f"{variant:6s} ATE {_f(r['ate_rmse_cm'])} cm over {r['frames_evaluated']} frames, lost {r['lost_frames']}, "
               f"kf {r['keyframes']}, total/frame {_f(r['timing_ms']['total_per_frame'], 1)} ms ({r['wall_s']:.0f} s)", flush=True)
-    out = ROOT / "docs" / "pipeline" / "euroc.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"dataset": args.dataset.name, "runs": results}, indent=2) + "\n")
-    body = table(results, args.dataset.name)
-    if not args.no_readme:
-        readme = ROOT / "README.md"
-        text = readme.read_text()
-        start, end = "<!-- euroc-table:start -->", "<!-- euroc-table:end -->"
-        i, j = text.index(start) + len(start), text.index(end)
-        readme.write_text(text[:i] + "\n" + body + "\n" + text[j:])
-    print(body)
-    return 0
+    return publish({"dataset": args.dataset.name, "runs": results}, table(results, args.dataset.name), json_name="euroc.json", block="euroc-table", readme=not args.no_readme)
 
 
 if __name__ == "__main__":
