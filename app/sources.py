@@ -162,5 +162,5 @@ def _stereo_engine(source, name: str, args: argparse.Namespace, *, headless: boo
     if headless:
         settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=True, image_scale=None, hessian=False)
     else:
-        settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=False, hessian=True)
+        settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=False, hessian=True, image_scale=1.0)
     return StereoEngine(source, settings=settings, name=name)

@@ -88,8 +88,21 @@ def _clicks(page, n: int) -> tuple[list[float], list[float]]:  # noqa: ANN001
     return updated, rendered
 
 
+def _room_debugger():  # noqa: ANN202
+    """The debugger on the stereo pipeline over the rendered room (as `coplanar serve`)."""
+    from app.cli import build_parser
+    from app.serve_command import build_engine
+    from tests.browser.conftest import free_port
+    from viewer.app import Debugger
+
+    engine = build_engine(build_parser().parse_args(["serve", "--scene", "room"]))
+    debugger = Debugger(engine, port=free_port())
+    debugger.server.scene.configure_environment_map(hdri=None)
+    return debugger
+
+
 def bench_latency(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
-    debugger = start_debugger(sequence=args.sequence)
+    debugger = _room_debugger() if args.scene == "room" else start_debugger(sequence=args.sequence)
     try:
         for _ in range(args.warmup):
             debugger.submit("step")
@@ -100,8 +113,8 @@ def bench_latency(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
         put, draw = debugger._commands.put, debugger.scene.draw
         debugger._commands.put = lambda item, *a, **k: (queued.append(time.perf_counter()), put(item, *a, **k))[1]
 
-        def timed_draw(snapshot):  # noqa: ANN001, ANN202
-            draw(snapshot)
+        def timed_draw(snapshot, **options):  # noqa: ANN001, ANN003, ANN202
+            draw(snapshot, **options)
             flushed.append(time.perf_counter())
 
         debugger.scene.draw = timed_draw
@@ -110,11 +123,12 @@ def bench_latency(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
         _clicks(page, 3)  # warm the page
         queued.clear()
         flushed.clear()
-        n0 = len(debugger.history)
+        n0 = debugger.engine.keyframes
         updated, rendered = _clicks(page, args.clicks)
         server = [1e3 * (b - a) for a, b in zip(queued, flushed)]
-        totals = [s.report.timing_ms["total"] for s in list(debugger.history)[n0:]]
-        print(f"sequence {args.sequence}, window {debugger.engine.settings.window}, after {args.warmup} keyframes, page {args.width}x{args.height}:")
+        totals = [debugger.history[i].report.timing_ms["total"] for i in range(n0 - debugger.engine.keyframes, 0)]
+        what = "rendered room (stereo pipeline)" if args.scene == "room" else f"sequence {args.sequence}"
+        print(f"{what}, window {debugger.engine.settings.window}, after {args.warmup} keyframes, page {args.width}x{args.height}:")
         print(f"  click -> scene received:  {_summary(updated)}")
         print(f"  click -> next frame:      {_summary(rendered)}")
         print(f"  server: click -> sent:    {_summary(server)}")
@@ -184,6 +198,7 @@ def bench_memory(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("which", choices=("latency", "points", "memory"))
+    parser.add_argument("--scene", choices=("mc-a", "room"), default="mc-a", help="latency: Monte-Carlo sequence (--sequence) or the rendered room")
     parser.add_argument("--sequence", choices=("a", "b"), default="a")
     parser.add_argument("--warmup", type=int, default=30)
     parser.add_argument("--clicks", type=int, default=30)

@@ -2,13 +2,21 @@
 
 All engine calls run on one worker thread, fed by a command queue, so GUI callbacks never
 block and never race. The GUI and scene are server-wide: every open tab shows the same
-state. Snapshots are kept (up to `history`) and the keyframe slider scrubs through them
-without touching the engine.
+state (the camera is each tab's own). Snapshots are kept per keyframe and per variant
+(:class:`viewer.history.SnapshotHistory`): the keyframe slider scrubs through them without
+touching the engine, and every variant chosen at the newest keyframe re-optimizes that
+window from the same engine state (a checkpoint taken after the step), so variants can be
+compared at the same keyframe and returning to one shows its kept result.
+
+Layout: the control panel (run, A/B, view, layers, export) is docked on the right; a
+second panel docked on the left holds the larger views in tabs (keyframe image, Hessian,
+variants at this keyframe, plots over time, report). The 3D view lies between them.
 """
 
 from __future__ import annotations
 
 import collections
+import copy
 import dataclasses
 import logging
 import queue
@@ -17,53 +25,35 @@ import time
 import traceback
 from collections.abc import Callable
 
+import numpy as np
 import viser
 
 from backend.export.ply import snapshot_ply_bytes
 from backend.optim.problem import VARIANTS, parse_variant
 from backend.pipeline.engine import Engine, EndOfSequence
 from backend.pipeline.snapshot import Snapshot
-from viewer import images
+from viewer import images, panels
+from viewer.framing import follow_pose, framing_pose, snapshot_bounds
+from viewer.history import SnapshotHistory
+from viewer.plots import plots_image
 from viewer.scene import SceneView
 
 log = logging.getLogger(__name__)
 PROGRESS_DELAY_S = 0.3
+AB_OFF = "off"
+SHORTCUTS = "**keys**: space play/pause · → step · shift+← / shift+→ scrub · F frame all"
 
 
 @dataclasses.dataclass(frozen=True)
 class ViewerSettings:
-    """`history`: snapshots kept for scrubbing (oldest dropped first). `rate_hz`: default
-    Play rate. `compare`: compute the -wo | -r | -w comparison after each step."""
+    """`history`: keyframes kept for scrubbing (oldest dropped first). `rate_hz`: default
+    Play rate. `compare`: compute the -wo | -r | -w comparison after each step. `plots`:
+    draw the plots over time (in the background, after each update)."""
 
     history: int = 500
     rate_hz: float = 5.0
     compare: bool = True
-
-
-def _report_markdown(s: Snapshot) -> str:
-    r = s.report
-    t = r.timing_ms
-    stages = " · ".join(f"{k} {v:.1f}" for k, v in t.items())
-    det = s.detection
-    rows = "\n".join(
-        f"| {q} | {c} | {i} ({100.0 * i / max(c, 1):.0f}%) | {'accepted → plane ' + str(p) if a else 'rejected'} |"
-        for q, c, i, a, p in zip(det.instance, det.candidates, det.inliers, det.accepted, det.plane)
-    )
-    detection = f"| instance | candidates | consensus | result |\n|---|---|---|---|\n{rows}" if rows else "no candidate set reached the size threshold"
-    notes = f"**{s.message}**\n\n" if s.message else ""
-    if s.tracking is not None and s.image is None:  # otherwise shown beside the image
-        notes += images.tracking_markdown(s.tracking) + "\n\n"
-    return (
-        f"**keyframe {s.keyframe}** · {r.variant} · window {r.window} + {r.fixed_poses} fixed\n\n"
-        f"{notes}"
-        f"iterations {r.iterations} ({r.termination or ('converged' if r.converged else 'not converged')}"
-        f"{f'; {r.dropped_landmarks} landmarks left out of a step' if r.dropped_landmarks else ''}) · "
-        f"cost {r.initial_cost:.4g} → {r.final_cost:.4g}\n\n"
-        f"time (ms): {stages}\n\n"
-        f"**trajectory error**: RMSE {s.metrics.rmse_cm:.2f} cm · ATE (SE3) {s.metrics.ate_cm:.2f} cm\n\n"
-        f"**map**: {len(s.points)} points · {len(s.lines)} lines · {len(s.planes)} planes\n\n"
-        f"**co-planar detection** (θ_cp = 80 %)\n\n{detection}"
-    )
+    plots: bool = True
 
 
 class Debugger:
@@ -74,71 +64,130 @@ class Debugger:
         self.settings = settings
         self.server = viser.ViserServer(host=host, port=port, label="coplanar")
         self.port = self.server.get_port()
-        self.history: collections.deque[Snapshot] = collections.deque(maxlen=settings.history)
+        self.history = SnapshotHistory(settings.history)
         self._shown: Snapshot | None = None
         self._commands: queue.Queue[tuple[str, object]] = queue.Queue()
         self._playing = threading.Event()
         self._stopped = threading.Event()
         self.busy = threading.Event()
+        self._status_lock = threading.Lock()
+        self._busy_token: object | None = None
         self._progress_timer: threading.Timer | None = None
         self.steps_done = 0
+        # Engine checkpoints at the newest keyframe: after its step ("base") and after
+        # each variant's re-optimization there.
+        self._states_keyframe: int | None = None
+        self._states: dict[str, object] = {}
+        self._base_variant = ""
+        # The A/B run: a second engine on the same input in lockstep (None: off).
+        self.engine_b: Engine | None = None
+        self.history_b: dict[int, Snapshot] = {}
+        # Per client: the view this debugger last set (None: the user has moved it since,
+        # so it is no longer re-framed as the map grows).
+        self._auto_view: dict[int, tuple[np.ndarray, np.ndarray] | None] = {}
+        self._play_times: collections.deque[float] = collections.deque(maxlen=8)
+        self._plot_request: tuple[list[Snapshot], int | None] | None = None
+        self._plot_event = threading.Event()
+        self.plot_updates = 0
         self.scene = SceneView(self.server)
         self._build_gui()
+        self.server.on_client_connect(self._on_connect)
         self._worker = threading.Thread(target=self._run, name="coplanar-engine", daemon=True)
         self._worker.start()
+        self._plotter = threading.Thread(target=self._plot_loop, name="coplanar-plots", daemon=True)
+        self._plotter.start()
 
     # ------------------------------------------------------------------ GUI
 
     def _build_gui(self) -> None:
         gui = self.server.gui
         gui.configure_theme(control_width="large", show_share_button=False)
+        gui.main_panel.dock_right()
         self.status = gui.add_markdown(f"**{self.engine.source}**: ready, press Step or Play")
-        self.progress = gui.add_progress_bar(100.0, animated=True, visible=False)
         with gui.add_folder("Run"):
             self.variant = gui.add_dropdown("Variant", VARIANTS, initial_value=self.engine.variant)
             self.step_button = gui.add_button("Step")
             self.play = gui.add_checkbox("Play", initial_value=False)
             self.rate = gui.add_slider("Rate (Hz)", min=0.5, max=30.0, step=0.5, initial_value=self.settings.rate_hz)
+            self.achieved = gui.add_text("Achieved", initial_value="–", disabled=True)
             self.reset_button = gui.add_button("Reset")
             self.slider = gui.add_slider("Keyframe", min=0, max=1, step=1, initial_value=0, disabled=True)
             self.keyframe_label = gui.add_text("Shown", initial_value="none", disabled=True)
-        with gui.add_folder("Keyframe image", visible=False) as self.image_folder:
-            self.keyframe_image = gui.add_image(images.blank(), label="left image", format="jpeg", jpeg_quality=90)
-            self.tracking_text = gui.add_markdown("")
-            self.image_legend = gui.add_markdown(images.KEYFRAME_LEGEND)
-        with gui.add_folder("Hessian"):
-            self.hessian_legend = gui.add_markdown("no window optimized yet")
-            self.hessian_image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
-            self.compare_box = gui.add_checkbox("Compare -wo | -r | -w", initial_value=self.settings.compare)
-            self.compare_image = gui.add_image(images.blank(), label="newest window under -wo | -r | -w", format="png")
-        with gui.add_folder("Report"):
-            self.report = gui.add_markdown("")
-
+            # Last in the folder, so that showing it moves nothing a user clicks.
+            self.progress = gui.add_progress_bar(100.0, animated=True, visible=False)
+        with gui.add_folder("A/B run"):
+            self.ab_variant = gui.add_dropdown("B variant", (AB_OFF, *VARIANTS), initial_value=AB_OFF)
+            self.ab_note = gui.add_markdown("A second engine runs the same input in lockstep from the state shown when B is chosen; its trajectory and newest camera are drawn in magenta, the differences are in the *Variants* tab.")
+        with gui.add_folder("View"):
+            self.follow = gui.add_checkbox("Follow keyframe", initial_value=False)
+            self.frame_button = gui.add_button("Frame all")
+            self.reset_view_button = gui.add_button("Reset view")
+            self.point_scale = gui.add_slider("Point size", min=0.25, max=4.0, step=0.25, initial_value=1.0)
         with gui.add_folder("Layers"):
             self.layer_boxes = {
                 name: gui.add_checkbox(label, initial_value=getattr(self.scene.layers, name))
                 for name, label in (
                     ("cameras", "Cameras"), ("points", "Points"), ("lines", "Lines"), ("planes", "Planes"),
                     ("infinite_planes", "Infinite planes"), ("inliers", "RANSAC in/outliers"), ("ground_truth", "Ground truth"),
+                    ("ab", "A/B run (B)"),
                 )
             }
+            self.layer_note = gui.add_markdown("")
         with gui.add_folder("Export"):
             self.export_button = gui.add_button("Download map (PLY)")
+            self.export_trajectory = gui.add_button("Download trajectory (TUM)")
+            self.export_keyframes = gui.add_button("Download keyframe poses (TUM)")
+        gui.add_markdown(SHORTCUTS)
+
+        side = gui.add_panel()
+        with side.add_tab("Keyframe", viser.Icon.PHOTO):
+            self.keyframe_image = gui.add_image(images.blank(), label="left image", format="jpeg", jpeg_quality=90)
+            self.tracking_text = gui.add_markdown("")
+            self.image_legend = gui.add_markdown(images.KEYFRAME_LEGEND)
+        with side.add_tab("Hessian", viser.Icon.GRID_DOTS):
+            self.hessian_legend = gui.add_markdown("no window optimized yet")
+            self.hessian_image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
+            self.compare_box = gui.add_checkbox("Compare -wo | -r | -w", initial_value=self.settings.compare)
+            self.compare_image = gui.add_image(images.blank(), label="newest window under -wo | -r | -w", format="png")
+        with side.add_tab("Variants", viser.Icon.ARROWS_DIFF):
+            self.all_button = gui.add_button("Compute all six at the newest keyframe")
+            self.variants_text = gui.add_markdown("no keyframe yet")
+            self.ab_text = gui.add_markdown("")
+        with side.add_tab("Plots", viser.Icon.CHART_LINE):
+            self.plots_box = gui.add_checkbox("Update plots", initial_value=self.settings.plots)
+            self.plots_image = gui.add_image(images.blank(), label="over the kept keyframes (red line: shown)", format="png")
+        with side.add_tab("Report", viser.Icon.FILE_DESCRIPTION):
+            self.report = gui.add_markdown("")
+        side.dock_left()
+        side.set_width(560)
+        self.side_panel = side
+        self._connect_callbacks()
+
+    def _connect_callbacks(self) -> None:
+        gui = self.server.gui
         self.step_button.on_click(lambda _: self._commands.put(("step", None)))
         self.reset_button.on_click(lambda _: self._commands.put(("reset", None)))
+        self.all_button.on_click(lambda _: self._commands.put(("all_variants", None)))
 
         @self.variant.on_update
         def _(event: viser.GuiEvent) -> None:
             if event.client is not None:
                 self._commands.put(("variant", self.variant.value))
 
+        @self.ab_variant.on_update
+        def _(event: viser.GuiEvent) -> None:
+            if event.client is not None:
+                self._commands.put(("ab", self.ab_variant.value))
+
         @self.play.on_update
         def _(event: viser.GuiEvent) -> None:
             if self.play.value:
+                self._play_times.clear()
                 self._playing.set()
                 self._commands.put(("wake", None))
             else:
                 self._playing.clear()
+                self.achieved.value = "–"
 
         @self.slider.on_update
         def _(event: viser.GuiEvent) -> None:
@@ -150,15 +199,25 @@ class Debugger:
         for name, box in self.layer_boxes.items():
             box.on_update(self._layer_callback(name, box))
 
-        @self.export_button.on_click
-        def _(event: viser.GuiEvent) -> None:
-            snapshot = self._shown
-            if snapshot is None or event.client is None:
-                return
-            data = snapshot_ply_bytes(snapshot)
-            event.client.send_file_download(f"coplanar_map_kf{snapshot.keyframe:05d}_{snapshot.variant}.ply", data, save_immediately=True)
+        @self.point_scale.on_update
+        def _(_: viser.GuiEvent) -> None:
+            with self.server.atomic():
+                self.scene.set_point_scale(float(self.point_scale.value))
 
+        self.frame_button.on_click(lambda event: self._frame(event.client, keep_direction=True))
+        self.reset_view_button.on_click(lambda event: self._frame(event.client, keep_direction=False))
+        self.export_button.on_click(lambda event: self._export(event.client, "map"))
+        self.export_trajectory.on_click(lambda event: self._export(event.client, "trajectory"))
+        self.export_keyframes.on_click(lambda event: self._export(event.client, "keyframes"))
         self.compare_box.on_update(lambda _: self._commands.put(("compare", None)))
+        self.plots_box.on_update(lambda _: self._request_plots())
+
+        # Keyboard shortcuts (viser's command palette binds them for every tab).
+        gui.add_command("Play / pause", hotkey="space").on_trigger(lambda _: setattr(self.play, "value", not self.play.value))
+        gui.add_command("Step", hotkey="arrowright").on_trigger(lambda _: self._commands.put(("step", None)))
+        gui.add_command("Scrub back", hotkey="arrowleft", modifier="shift").on_trigger(lambda _: self._scrub(-1))
+        gui.add_command("Scrub forward", hotkey="arrowright", modifier="shift").on_trigger(lambda _: self._scrub(+1))
+        gui.add_command("Frame all", hotkey="F").on_trigger(lambda event: self._frame(event.client, keep_direction=True))
 
     def _layer_callback(self, name: str, box: viser.GuiCheckboxHandle) -> Callable[[viser.GuiEvent], None]:
         def callback(_: viser.GuiEvent) -> None:
@@ -166,6 +225,51 @@ class Debugger:
                 self.scene.set_layer(name, bool(box.value))
 
         return callback
+
+    def _scrub(self, delta: int) -> None:
+        if not self.history or self.slider.disabled:
+            return
+        if self.play.value:
+            self.play.value = False
+        value = int(np.clip(int(self.slider.value) + delta, self.slider.min, self.slider.max))
+        self.slider.value = value
+        self._commands.put(("show", value))
+
+    # ------------------------------------------------------------------ status
+
+    def _set_status(self, text: str) -> None:
+        """Write the status line; a pending progress message can no longer overwrite it."""
+        with self._status_lock:
+            self._busy_token = None
+            self.status.content = text
+
+    def _busy(self, text: str) -> None:
+        """Mark the worker busy; `text` and the progress bar appear only if the work takes
+        longer than PROGRESS_DELAY_S (a quick step should not repaint the panel twice)."""
+        self.busy.set()
+        token = object()
+        with self._status_lock:
+            self._busy_token = token
+
+        def show() -> None:
+            with self._status_lock:
+                if self._busy_token is token:
+                    self.status.content = text
+                    self.progress.visible = True
+
+        self._progress_timer = threading.Timer(PROGRESS_DELAY_S, show)
+        self._progress_timer.daemon = True
+        self._progress_timer.start()
+
+    def _idle(self) -> None:
+        self.busy.clear()
+        with self._status_lock:
+            self._busy_token = None
+        if self._progress_timer is not None:
+            self._progress_timer.cancel()
+            self._progress_timer = None
+        if self.progress.visible:
+            self.progress.visible = False
 
     # ------------------------------------------------------------------ worker
 
@@ -186,96 +290,192 @@ class Debugger:
                 log.error("engine error:\n%s", traceback.format_exc())
                 self._playing.clear()
                 self.play.value = False
-                self.status.content = f"**error** in {command}: `{type(exc).__name__}: {exc}`. Paused; fix or Reset."
+                self._idle()
+                self._set_status(f"**error** in {command}: `{type(exc).__name__}: {exc}`. Paused; fix or Reset.")
             finally:
                 self._idle()
                 if not from_timer:
                     self._commands.task_done()
 
-    def _busy(self, text: str) -> None:
-        """Mark the worker busy; `text` and the progress bar appear only if the work takes
-        longer than PROGRESS_DELAY_S (a quick step should not repaint the panel twice)."""
-        self.busy.set()
-
-        def show() -> None:
-            if self.busy.is_set():
-                self.status.content = text
-                self.progress.visible = True
-
-        self._progress_timer = threading.Timer(PROGRESS_DELAY_S, show)
-        self._progress_timer.daemon = True
-        self._progress_timer.start()
-
-    def _idle(self) -> None:
-        self.busy.clear()
-        if self._progress_timer is not None:
-            self._progress_timer.cancel()
-            self._progress_timer = None
-        if self.progress.visible:
-            self.progress.visible = False
-
     def _execute(self, command: str, arg: object) -> None:
         if command == "step":
-            self._busy(f"stepping: keyframe {len(self.history) and self.history[-1].keyframe + 1} …")
-            try:
-                snapshot = self.engine.step()
-            except EndOfSequence as end:
-                self._playing.clear()
-                self.play.value = False
-                self.status.content = f"**end of sequence**: {end}"
-                return
-            self.steps_done += 1
-            self._publish(snapshot)
+            self._step()
         elif command == "variant":
-            name = str(arg)
-            parse_variant(name)
-            self.engine.set_variant(name)
-            if self.history:
-                self._busy(f"re-optimizing the window with {name} …")
-                snapshot = self.engine.reoptimize()
-                self.history.pop()
-                self._publish(snapshot)
-            else:
-                self.status.content = f"variant {name}: used from the first step"
+            self._switch_variant(str(arg))
+        elif command == "all_variants":
+            self._all_variants()
+        elif command == "ab":
+            self._set_ab(str(arg))
         elif command == "reset":
-            self._busy("resetting …")
-            self.engine.reset()
-            self.history.clear()
-            self._shown = None
-            self.slider.disabled = True
-            self.status.content = f"**{self.engine.source}**: reset, press Step or Play"
+            self._reset()
         elif command == "show":
-            index = int(arg) - (self.history[0].keyframe if self.history else 0)
-            if 0 <= index < len(self.history):
-                self._show(self.history[index])
+            keyframe = int(arg)
+            snapshot = self.history.get(keyframe, self.engine.variant)
+            if snapshot is not None:
+                self._show(snapshot)
         elif command == "compare":
             self._update_compare()
 
+    def _step(self) -> None:
+        self._busy(f"stepping: keyframe {self.history.newest_keyframe + 1 if self.history else 0} …")
+        try:
+            snapshot = self.engine.step()
+        except EndOfSequence as end:
+            self._playing.clear()
+            self.play.value = False
+            self._idle()
+            self._set_status(f"**end of sequence**: {end}")
+            return
+        other = None
+        if self.engine_b is not None:
+            try:
+                other = self.engine_b.step()
+                self._keep_b(other)
+            except EndOfSequence:
+                self._stop_ab("B reached the end of the sequence")
+        self.steps_done += 1
+        self._states_keyframe = None
+        self._states = {}
+        if self._playing.is_set():
+            self._play_times.append(time.perf_counter())
+        self.history.add_step(snapshot)
+        self._publish(snapshot)
+
+    def _keep_b(self, snapshot: Snapshot) -> None:
+        self.history_b[snapshot.keyframe] = snapshot
+        while len(self.history_b) > self.settings.history:
+            self.history_b.pop(next(iter(self.history_b)))
+
+    def _switch_variant(self, name: str) -> None:
+        """Show `name` at the newest keyframe: its kept result, or the window re-optimized
+        with it from the state the step left."""
+        parse_variant(name)
+        if not self.history:
+            self.engine.set_variant(name)
+            self._set_status(f"variant {name}: used from the first step")
+            return
+        k = self.history.newest_keyframe
+        has_states = hasattr(self.engine, "checkpoint")
+        if has_states and self._states_keyframe != k:
+            self._states_keyframe = k
+            self._base_variant = self.engine.variant
+            self._states = {"base": self.engine.checkpoint(), self.engine.variant: self.engine.checkpoint()}
+        kept = self.history.variants_at(k).get(name)
+        if has_states and kept is not None and name in self._states:
+            self.engine.restore(self._states[name])
+            self.engine.set_variant(name)
+            self.history.choose(k, name)
+            self._publish(kept)
+            return
+        self._busy(f"re-optimizing the window with {name} …")
+        if has_states:
+            self.engine.restore(self._states["base"])
+        self.engine.set_variant(name)
+        snapshot = self.engine.reoptimize()
+        if has_states:
+            self._states[name] = self.engine.checkpoint()
+        self.history.add_variant(snapshot)
+        self._publish(snapshot)
+
+    def _all_variants(self) -> None:
+        """Every variant at the newest keyframe from the same state; the selected one stays."""
+        if not self.history:
+            self._set_status("no keyframe yet: press Step first")
+            return
+        selected = self.engine.variant
+        for name in VARIANTS:
+            if name not in self.history.variants_at(self.history.newest_keyframe):
+                self._switch_variant(name)
+        self._switch_variant(selected)
+
+    def _set_ab(self, name: str) -> None:
+        if name == AB_OFF:
+            self._stop_ab("A/B run off")
+            if self._shown is not None:
+                self._show(self._shown)
+            return
+        parse_variant(name)
+        self._busy(f"starting the A/B run with {name} …")
+        engine_b = copy.copy(self.engine)
+        if hasattr(self.engine, "checkpoint"):
+            engine_b.restore(self.engine.checkpoint())
+        engine_b.set_variant(name)
+        self.engine_b = engine_b
+        if self.ab_variant.value != name:
+            self.ab_variant.value = name
+        self.history_b = {}
+        if self.history:
+            self._keep_b(engine_b.reoptimize())
+        self._set_status(f"A/B run: B = {name}, started at keyframe {self.history.newest_keyframe if self.history else 0}; press Step")
+        if self._shown is not None:
+            self._show(self._shown)
+
+    def _stop_ab(self, why: str) -> None:
+        self.engine_b = None
+        self.history_b = {}
+        if self.ab_variant.value != AB_OFF:
+            self.ab_variant.value = AB_OFF
+        self.ab_text.content = f"*{why}*"
+
+    def _reset(self) -> None:
+        self._busy("resetting …")
+        self.engine.reset()
+        self.history.clear()
+        self._stop_ab("A/B run off (reset)")
+        self._states_keyframe = None
+        self._states = {}
+        self._shown = None
+        self._auto_view = {}
+        with self.server.atomic():
+            self.scene.clear()
+            self.slider.disabled = True
+            self.keyframe_label.value = "none"
+            self.keyframe_image.image = images.blank()
+            self.tracking_text.content = ""
+            self.hessian_image.image = images.blank()
+            self.hessian_legend.content = "no window optimized yet"
+            self.compare_image.image = images.blank()
+            self.variants_text.content = "no keyframe yet"
+            self.plots_image.image = images.blank()
+            self.report.content = ""
+            self.layer_note.content = ""
+            self.achieved.value = "–"
+        self._idle()
+        self._set_status(f"**{self.engine.source}**: reset, press Step or Play")
+
+    # ------------------------------------------------------------------ drawing
+
     def _publish(self, snapshot: Snapshot) -> None:
-        """Keep a new snapshot and show it; then the slider follows the newest keyframe."""
-        self.history.append(snapshot)
+        """Show a new or re-optimized snapshot; the slider follows the newest keyframe."""
         self._show(snapshot)
-        first = self.history[0].keyframe
+        first = self.history.first_keyframe
         with self.server.atomic():
             self.slider.disabled = len(self.history) < 2
             self.slider.max = max(snapshot.keyframe, first + 1)
             self.slider.min = first
             self.slider.value = snapshot.keyframe
-            self.status.content = (
-                f"**{self.engine.source}**: keyframe {snapshot.keyframe} · {snapshot.variant}"
-                + (" · playing" if self._playing.is_set() else "")
-                + (f"\n\n**{snapshot.message}**" if snapshot.message else "")
-            )
+            if len(self._play_times) >= 2 and self._playing.is_set():
+                span = self._play_times[-1] - self._play_times[0]
+                rate = (len(self._play_times) - 1) / span if span > 0 else float("nan")
+                self.achieved.value = f"{rate:.1f} keyframes/s (asked {self.rate.value:g})"
+        self._idle()
+        self._set_status(
+            f"**{self.engine.source}**: keyframe {snapshot.keyframe} · {snapshot.variant}"
+            + (" · playing" if self._playing.is_set() else "")
+            + (f"\n\n**{snapshot.message}**" if snapshot.message else "")
+        )
         self._update_compare()
 
     def _show(self, snapshot: Snapshot) -> None:
         """Draw a snapshot: the scene first (its label last, so a client that sees the label
         has the whole scene), then the panels, which cost more to encode."""
+        other = self.history_b.get(snapshot.keyframe) if self.engine_b is not None else None
         with self.server.atomic():
-            self.scene.draw(snapshot)
+            self.scene.draw(snapshot, other=other)
             self.keyframe_label.value = f"{snapshot.keyframe} ({snapshot.variant})"
         self.server.flush()
         self._shown = snapshot
+        self._update_views(snapshot)
         with self.server.atomic():
             if self.variant.value != snapshot.variant:
                 self.variant.value = snapshot.variant
@@ -283,13 +483,22 @@ class Debugger:
                 self.keyframe_image.image = images.keyframe_image(snapshot.image)
                 self.keyframe_image.label = f"keyframe {snapshot.keyframe}: left image"
                 self.tracking_text.content = images.tracking_markdown(snapshot.tracking)
-            if self.image_folder.visible != (snapshot.image is not None):
-                self.image_folder.visible = snapshot.image is not None
+            elif self.keyframe_image.visible:
+                self.tracking_text.content = f"*{self.engine.source}: no images (features are simulated)*"
+            if self.keyframe_image.visible != (snapshot.image is not None):
+                self.keyframe_image.visible = self.image_legend.visible = snapshot.image is not None
             if snapshot.hessian is not None:
                 self.hessian_image.image = images.hessian_image(snapshot.hessian)
                 self.hessian_legend.content = images.legend_markdown(snapshot.hessian)
-            self.report.content = _report_markdown(snapshot)
+            self.report.content = panels.report_markdown(snapshot)
+            self.variants_text.content = panels.variants_markdown(self.history.variants_at(snapshot.keyframe), shown=snapshot)
+            self.ab_text.content = panels.ab_markdown(snapshot, other) if self.engine_b is not None else ""
+            self.layer_note.content = (
+                f"*{snapshot.variant}: planes are detected and drawn faint for reference; this variant's optimizer does not use them*"
+                if snapshot.variant.endswith("-wo") else ""
+            )
         self.server.flush()
+        self._request_plots()
 
     def _update_compare(self) -> None:
         self.compare_image.visible = bool(self.compare_box.value)
@@ -301,10 +510,118 @@ class Debugger:
         if structures:
             self.compare_image.image = images.compare_image(structures)
 
+    # ------------------------------------------------------------------ plots
+
+    def _request_plots(self) -> None:
+        """Ask the plot thread for the plots of what is shown (the newest request wins)."""
+        if not self.plots_box.value or self._shown is None:
+            return
+        self._plot_request = (self.history.series(self._shown.variant), self._shown.keyframe)
+        self._plot_event.set()
+
+    def _plot_loop(self) -> None:
+        while not self._stopped.is_set():
+            if not self._plot_event.wait(timeout=0.5):
+                continue
+            self._plot_event.clear()
+            request, self._plot_request = self._plot_request, None
+            if request is None or not request[0]:
+                continue
+            try:
+                self.plots_image.image = plots_image(request[0], current=request[1])
+                self.plot_updates += 1
+            except Exception:  # a plot must never stop the debugger
+                log.error("plot error:\n%s", traceback.format_exc())
+            if self._playing.is_set():
+                time.sleep(0.5)  # while playing, at most about two plot updates a second
+
+    # ------------------------------------------------------------------ camera
+
+    def _on_connect(self, client: viser.ClientHandle) -> None:
+        if self._shown is not None:  # else framed with the first snapshot
+            self._frame(client, keep_direction=False)
+
+    def _update_views(self, snapshot: Snapshot) -> None:
+        """Views that the user has not moved keep framing the map as it grows; with
+        *Follow keyframe*, every view keeps its offset to the newest keyframe."""
+        position, look_at = framing_pose(snapshot_bounds(snapshot), fov_y=float(self.server.initial_camera.fov), aspect=1.2)
+        self.server.initial_camera.position = position  # also viser's own "reset view"
+        self.server.initial_camera.look_at = look_at
+        for client_id, client in self.server.get_clients().items():
+            if self.follow.value:
+                self._follow(client, snapshot)
+                continue
+            last = self._auto_view.get(client_id, "never")
+            if isinstance(last, str) or (last is not None and self._view_unchanged(client, last)):
+                self._auto_view[client_id] = self._frame(client, keep_direction=False)
+            else:
+                self._auto_view[client_id] = None
+
+    @staticmethod
+    def _view_unchanged(client: viser.ClientHandle, view: tuple[np.ndarray, np.ndarray]) -> bool:
+        cam = client.camera
+        return bool(np.allclose(cam.position, view[0], atol=1e-3) and np.allclose(cam.look_at, view[1], atol=1e-3))
+
+    def _frame(self, client: viser.ClientHandle | None, *, keep_direction: bool) -> tuple[np.ndarray, np.ndarray] | None:
+        """Frame the shown map in `client`'s view (along its current direction, or the
+        default one); returns the view set. The view then follows the growing map again
+        until the user moves it."""
+        snapshot = self._shown
+        if client is None or snapshot is None:
+            return None
+        cam = client.camera
+        try:
+            fov, aspect = float(cam.fov), float(cam.aspect)
+        except AssertionError:  # the client has not reported its camera yet
+            fov, aspect = float(self.server.initial_camera.fov), 1.2
+        kwargs = {}
+        if keep_direction:
+            direction = np.asarray(cam.position, float) - np.asarray(cam.look_at, float)
+            if np.linalg.norm(direction) > 1e-9:
+                kwargs["direction"] = direction
+        position, look_at = framing_pose(snapshot_bounds(snapshot), fov_y=fov, aspect=aspect, **kwargs)
+        with client.atomic():  # position first: viser moves look_at along with it
+            cam.position = position
+            cam.look_at = look_at
+        self._auto_view[client.client_id] = (position, look_at)
+        return position, look_at
+
+    @staticmethod
+    def _follow(client: viser.ClientHandle, snapshot: Snapshot) -> None:
+        cam = client.camera
+        position, look_at = follow_pose(cam.position, cam.look_at, snapshot.estimate.t_world_camera[-1])
+        with client.atomic():  # position first: viser moves look_at along with it
+            cam.position = position
+            cam.look_at = look_at
+
+    # ------------------------------------------------------------------ export
+
+    def _export(self, client: viser.ClientHandle | None, what: str) -> None:
+        snapshot = self._shown
+        if client is None:
+            return
+        if snapshot is None:
+            client.add_notification("Nothing to export", "No keyframe is shown yet: press Step first.", auto_close_seconds=5.0, color="yellow")
+            return
+        stem = f"coplanar_kf{snapshot.keyframe:05d}_{snapshot.variant}"
+        if what == "map":
+            client.send_file_download(f"coplanar_map_kf{snapshot.keyframe:05d}_{snapshot.variant}.ply", snapshot_ply_bytes(snapshot), save_immediately=True)
+        elif what == "keyframes":
+            client.send_file_download(f"{stem}_keyframes.txt", panels.tum_bytes(snapshot.estimate), save_immediately=True)
+        else:
+            frames = getattr(self.engine, "frame_trajectory", None)
+            if frames is None or snapshot.keyframe != self.history.newest_keyframe:
+                # Per-frame poses exist for the engine's current state only (the newest keyframe).
+                client.send_file_download(f"{stem}_keyframes.txt", panels.tum_bytes(snapshot.estimate), save_immediately=True)
+                client.add_notification("Keyframe poses exported", "Every-frame poses exist only for the newest keyframe and engines that track frames; the keyframe poses were written.", auto_close_seconds=6.0)
+                return
+            client.send_file_download(f"{stem}_trajectory.txt", panels.tum_bytes(frames().estimate), save_immediately=True)
+
     # ------------------------------------------------------------------ control
 
     def submit(self, command: str, arg: object = None) -> None:
-        """Queue a command as the GUI would ("step", "reset", "variant", "show")."""
+        """Queue a command as the GUI would ("step", "reset", "variant", "show", "ab",
+        "all_variants")."""
         self._commands.put((command, arg))
 
     def wait_idle(self, timeout: float = 60.0) -> None:
@@ -315,9 +632,16 @@ class Debugger:
                 raise TimeoutError("the engine did not become idle")
             time.sleep(0.005)
 
+    @property
+    def shown(self) -> Snapshot | None:
+        """The snapshot on screen."""
+        return self._shown
+
     def stop(self) -> None:
         self._stopped.set()
         self._playing.clear()
         self._commands.put(("stop", None))
         self._worker.join(timeout=10.0)
+        self._plot_event.set()
+        self._plotter.join(timeout=5.0)
         self.server.stop()

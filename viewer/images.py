@@ -20,23 +20,45 @@ def blank(*, width: int = 8, height: int = 8) -> np.ndarray:
 
 
 def hessian_image(structure: HessianStructure, *, max_px: int = IMAGE_PX) -> np.ndarray:
-    """RGB image (H, W, 3) uint8 of the pattern, with its legend."""
-    return np.asarray(render_hessian(structure.pattern, structure.groups, max_px=max_px, title=f"{structure.variant}: H = J^T J"))
+    """RGB image (H, W, 3) uint8 of the pattern (its legend is :func:`legend_markdown`).
+    Windows of more than `max_px` parameters keep the camera | plane block readable and
+    pool the landmark blocks (see :func:`pooled_note`)."""
+    return np.asarray(render_hessian(structure.pattern, structure.groups, max_px=max_px, legend=False, focus=True))
 
 
-def compare_image(structures: dict[str, HessianStructure], *, max_px: int = 240) -> np.ndarray:
-    """The same window's patterns side by side, labelled with variant, items and params."""
-    images = [render_hessian(s.pattern, s.groups, max_px=max_px, legend=False) for s in structures.values()]
-    labels = [f"{name}: {s.items} items, {s.params} params" for name, s in structures.items()]
-    return np.asarray(render_side_by_side(images, labels=labels))
+def compare_image(structures: dict[str, HessianStructure], *, max_px: int = 200) -> np.ndarray:
+    """The same window's patterns side by side, labelled with variant, items and params
+    (two lines in 18 px type, readable at the panel's width)."""
+    images = [render_hessian(s.pattern, s.groups, max_px=max_px, legend=False, focus=True) for s in structures.values()]
+    labels = [f"{name}\n{plural(s.items, 'item')}, {plural(s.params, 'param')}" for name, s in structures.items()]
+    return np.asarray(render_side_by_side(images, labels=labels, font_px=18))
+
+
+def plural(count: int, word: str) -> str:
+    """`1 frame`, `2 frames`."""
+    return f"{count} {word}" if count == 1 else f"{count} {word}s"
+
+
+def pooled_note(structure: HessianStructure, *, max_px: int = IMAGE_PX) -> str:
+    """What the image leaves out when it pools a large window ('' when it does not)."""
+    landmarks = sum(g.size for g in structure.groups if g.kind in ("points", "lines"))
+    if structure.params <= max_px or landmarks == 0:
+        return ""
+    return (
+        f"{landmarks:,} landmark params pooled into the middle band (a pixel is nonzero if any entry under it is); "
+        "cameras and planes keep up to one pixel per param"
+    )
 
 
 def legend_markdown(structure: HessianStructure) -> str:
-    """A table of the groups: items and params (tangent dimensions)."""
+    """A table of the groups: items and params (tangent dimensions), and how the image
+    pools a large window."""
     rows = "\n".join(f"| {g.kind} | {g.items} | {g.size} |" for g in structure.groups)
+    note = pooled_note(structure)
     return (
-        f"**{structure.variant}**: {structure.items} items, {structure.params} params, {structure.nnz:,} nonzeros\n\n"
-        f"| group | items | params |\n|---|---|---|\n{rows}"
+        f"**{structure.variant}**: H = JᵀJ of the window, {plural(structure.items, 'item')}, "
+        f"{plural(structure.params, 'param')}, {structure.nnz:,} nonzeros\n\n"
+        f"| group | items | params |\n|---|---|---|\n{rows}" + (f"\n\n{note}" if note else "")
     )
 
 
@@ -58,8 +80,8 @@ def tracking_markdown(tracking: Tracking | None) -> str:
         return ""
     t = tracking
     return (
-        f"**tracking** since the previous keyframe: {t.frames} frames · {t.lost_frames} lost · "
-        f"{t.reinitializations} re-initializations  \n"
-        f"tracked on the keyframe: {t.tracked_points} points · {t.tracked_lines} lines"
+        f"**tracking** since the previous keyframe: {plural(t.frames, 'frame')} · {t.lost_frames} lost · "
+        f"{plural(t.reinitializations, 're-initialization')}  \n"
+        f"tracked on the keyframe: {plural(t.tracked_points, 'point')} · {plural(t.tracked_lines, 'line')}"
         + (f"  \nkeyframe by: {t.keyframe_reason}" if t.keyframe_reason else "")
     )

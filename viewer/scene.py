@@ -27,6 +27,9 @@ COLOR_ESTIMATE = (30, 90, 220)
 COLOR_GROUND_TRUTH = (20, 20, 20)
 COLOR_INLIER = (0, 200, 0)
 COLOR_OUTLIER = (255, 0, 0)
+COLOR_B = (200, 0, 200)  # the A/B run's trajectory and newest camera
+PLANE_OPACITY = 0.45
+PLANE_OPACITY_UNUSED = 0.15  # -wo variants: planes shown for reference only
 
 
 @dataclasses.dataclass
@@ -40,6 +43,7 @@ class Layers:
     inliers: bool = True
     ground_truth: bool = True
     cameras: bool = True
+    ab: bool = True
 
 
 # Scene node name -> the layer that controls its visibility.
@@ -54,6 +58,7 @@ NODE_LAYER = {
     "/map/outlier_lines": "inliers",
     "/trajectory/ground_truth": "ground_truth",
     "/cameras": "cameras",
+    "/ab": "ab",
 }
 
 
@@ -104,11 +109,15 @@ class SceneView:
         self._server = server
         self.layers = layers or Layers()
         self._handles: dict[str, viser.SceneNodeHandle] = {}
+        self.point_scale = 1.0  # the user's factor on the extent-based marker size
+        self._point_size = 0.02
         server.scene.set_up_direction("+z")
         server.initial_camera.position = (-3.2, -5.2, 4.6)
         server.initial_camera.look_at = (0.0, 0.0, 0.0)
         # Software WebGL (headless, remote desktops) pays per pixel: a grid of lines costs
-        # far less than viser's shader grid, and shadows are off.
+        # far less than viser's shader grid, shadows are off, and so is the default HDRI
+        # environment map (it stalls software rendering for seconds).
+        server.scene.configure_environment_map(hdri=None)
         server.scene.configure_default_lights(cast_shadow=False)
         server.scene.add_line_segments("/world/grid", grid_segments(half=GRID_HALF_M, cell=1.0).astype(np.float32), COLOR_GRID, thickness=1.0, thickness_units="screen")
         server.scene.add_frame("/world/axes", axes_length=0.5, axes_radius=0.015)
@@ -122,6 +131,24 @@ class SceneView:
         setattr(self.layers, layer, visible)
         for name, handle in self._handles.items():
             handle.visible = self._visible(name)
+
+    def clear(self) -> None:
+        """Remove everything a snapshot drew (the grid and axes stay)."""
+        for name in list(self._handles):
+            self._keep(name, None)
+
+    def set_point_scale(self, scale: float) -> None:
+        """Scale the map's markers (points and RANSAC markers) by `scale`."""
+        self.point_scale = float(scale)
+        self._apply_point_size()
+
+    def _apply_point_size(self) -> None:
+        for name, handle in self._handles.items():
+            if isinstance(handle, viser.PointCloudHandle):
+                handle.point_size = self._size_of(name)
+
+    def _size_of(self, name: str) -> float:
+        return self._point_size * self.point_scale * (1.6 if name in ("/map/inliers", "/map/outliers") else 1.0)
 
     def _keep(self, name: str, handle: viser.SceneNodeHandle | None) -> None:
         old = self._handles.pop(name, None)
@@ -146,16 +173,20 @@ class SceneView:
         handle = self._server.scene.add_line_segments(name, segments.astype(np.float32), np.ascontiguousarray(cols), thickness=thickness, thickness_units="screen", visible=self._visible(name))
         self._keep(name, handle)
 
-    def _points(self, name: str, p: np.ndarray, colors: np.ndarray | tuple[int, int, int], *, size: float) -> None:
-        """Points (N, 3) with one colour or one per point (N, 3); updated in place."""
+    def _points(self, name: str, p: np.ndarray, colors: np.ndarray | tuple[int, int, int]) -> None:
+        """Points (N, 3) with one colour or one per point (N, 3), sized for the map's
+        extent (:func:`viewer.framing.marker_size_m`); updated in place."""
         if len(p) == 0:
             self._keep(name, None)
             return
         cols = np.ascontiguousarray(np.broadcast_to(np.asarray(colors, dtype=np.uint8).reshape(-1, 3), (len(p), 3)))
+        size = self._size_of(name)
         handle = self._handles.get(name)
         if isinstance(handle, viser.PointCloudHandle):
             handle.points = p.astype(np.float32)
             handle.colors = cols
+            if handle.point_size != size:
+                handle.point_size = size
             return
         handle = self._server.scene.add_point_cloud(name, p.astype(np.float32), cols, point_size=size, point_shape="circle", precision="float32", visible=self._visible(name))
         self._keep(name, handle)
@@ -167,6 +198,8 @@ class SceneView:
             handle.vertices = vertices.astype(np.float32)
             handle.faces = faces.astype(np.uint32)
             handle.color = color
+            if handle.opacity != opacity:
+                handle.opacity = opacity
             return
         handle = self._server.scene.add_mesh_simple(
             name, vertices.astype(np.float32), faces, color=color, opacity=opacity, material="toon3", side="double",
@@ -174,8 +207,12 @@ class SceneView:
         )
         self._keep(name, handle)
 
-    def draw(self, snapshot: Snapshot) -> None:
-        """Replace the drawn map with `snapshot`'s (call inside `server.atomic()`)."""
+    def draw(self, snapshot: Snapshot, *, other: Snapshot | None = None) -> None:
+        """Replace the drawn map with `snapshot`'s (call inside `server.atomic()`); `other`
+        (the A/B run's snapshot) adds its trajectory and newest camera in magenta."""
+        from viewer.framing import marker_size_m, snapshot_bounds
+
+        self._point_size = marker_size_m(snapshot_bounds(snapshot))
         est = snapshot.estimate
         R, t = est.R_world_camera, est.t_world_camera
         # Cameras: all keyframes grey, the window orange, the newest red.
@@ -191,15 +228,17 @@ class SceneView:
 
         pts, lns = snapshot.points, snapshot.lines
         finite = np.all(np.isfinite(pts.p_world), axis=1)
-        self._points("/map/points", pts.p_world[finite], plane_color(pts.plane[finite]), size=0.06)
+        self._points("/map/points", pts.p_world[finite], plane_color(pts.plane[finite]))
         seg_ok = np.all(np.isfinite(lns.segment_world.reshape(-1, 6)), axis=1)
         self._segments("/map/lines", lns.segment_world[seg_ok], plane_color(lns.plane[seg_ok]), thickness=3.0)
         # RANSAC consensus of the last detection: inliers green, outliers red (drawn larger).
         for state, name, color in ((INLIER, "inliers", COLOR_INLIER), (OUTLIER, "outliers", COLOR_OUTLIER)):
-            self._points(f"/map/{name}", pts.p_world[finite & (pts.detection == state)], color, size=0.10)
+            self._points(f"/map/{name}", pts.p_world[finite & (pts.detection == state)], color)
             self._segments(f"/map/{name[:-1]}_lines", lns.segment_world[seg_ok & (lns.detection == state)], color, thickness=6.0)
 
-        # Planes: the hull of the inliers (a triangle fan) and an optional large quad.
+        # Planes: the hull of the inliers (a triangle fan) and an optional large quad;
+        # faint under -wo variants, whose optimizer does not use them.
+        opacity = PLANE_OPACITY_UNUSED if snapshot.variant.endswith("-wo") else PLANE_OPACITY
         names = set()
         for plane in snapshot.planes:
             color = tuple(int(c) for c in plane_color(plane.id))
@@ -207,7 +246,7 @@ class SceneView:
             if len(hull) >= 3:
                 name = f"/map/planes/{plane.id}"
                 faces = np.stack([np.zeros(len(hull) - 2, int), np.arange(1, len(hull) - 1), np.arange(2, len(hull))], axis=1)
-                self._mesh(name, hull, faces, color, opacity=0.45)
+                self._mesh(name, hull, faces, color, opacity=opacity)
                 names.add(name)
                 centre = hull.mean(axis=0)
             else:
@@ -218,3 +257,14 @@ class SceneView:
             names.add(name)
         for name in [n for n in self._handles if n.startswith(("/map/planes/", "/map/infinite_planes/")) and n not in names]:
             self._keep(name, None)
+        self._draw_other(other)
+
+    def _draw_other(self, other: Snapshot | None) -> None:
+        if other is None:
+            self._segments("/ab/trajectory", np.zeros((0, 2, 3)), COLOR_B, thickness=2.0)
+            self._segments("/ab/camera", np.zeros((0, 2, 3)), COLOR_B, thickness=2.0)
+            return
+        t = other.estimate.t_world_camera
+        self._segments("/ab/trajectory", polyline_segments(t), COLOR_B, thickness=2.0)
+        R = other.estimate.R_world_camera
+        self._segments("/ab/camera", frustum_segments(R[-1:], t[-1:], other.camera), COLOR_B, thickness=2.0)

@@ -181,7 +181,31 @@ def _nonzero_coordinates(pattern: object, n: int) -> tuple[np.ndarray, np.ndarra
     return rows, cols
 
 
-def _matrix_codes(pattern: object, groups: Sequence[HessianGroup], max_px: int) -> tuple[np.ndarray, int]:
+def _shares(sizes: np.ndarray, budget: int) -> np.ndarray:
+    """`budget` pixels shared among groups of `sizes` params in proportion (rounded on
+    the cumulative boundaries), at least 1 and at most `size` each."""
+    if len(sizes) == 0:
+        return np.zeros(0, np.intp)
+    bounds = np.rint(np.concatenate([[0], np.cumsum(sizes)]) * (budget / max(int(sizes.sum()), 1))).astype(np.intp)
+    return np.clip(np.diff(bounds), 1, sizes)
+
+
+def _group_pixels(sizes: np.ndarray, kinds: list[str], max_px: int, *, focus: bool) -> np.ndarray:
+    """Pixels per group when the n > max_px parameters are pooled: in proportion to the
+    sizes, or with `focus` the cameras and planes first (up to half of `max_px`, at
+    least one pixel per parameter when they fit) and the landmarks the rest."""
+    if not focus:
+        return np.maximum(_shares(sizes, max_px), 1)
+    small = np.array([k in ("cameras", "planes") for k in kinds])
+    c, l = int(sizes[small].sum()), int(sizes[~small].sum())
+    budget_c = min(c, max_px // 2) if l else max_px
+    pixels = np.zeros(len(sizes), np.intp)
+    pixels[small] = _shares(sizes[small], budget_c)
+    pixels[~small] = _shares(sizes[~small], max_px - budget_c)
+    return pixels
+
+
+def _matrix_codes(pattern: object, groups: Sequence[HessianGroup], max_px: int, *, focus: bool = False) -> tuple[np.ndarray, int]:
     """uint8 code image of the matrix (separators included) and the number of nonzeros."""
     n = _validate_groups(groups)
     rows, cols = _nonzero_coordinates(pattern, n)
@@ -201,8 +225,7 @@ def _matrix_codes(pattern: object, groups: Sequence[HessianGroup], max_px: int) 
     else:
         scale = 1
         # Share max_px among groups by rounding cumulative boundaries, >= 1 px per group.
-        bounds = np.rint(np.concatenate([[0], np.cumsum(sizes)]) * (max_px / n)).astype(np.intp)
-        pixels = np.maximum(np.diff(bounds), 1)
+        pixels = _group_pixels(sizes, [g.kind for g in nonempty], max_px, focus=focus)
         offsets = np.concatenate([[0], np.cumsum(pixels)[:-1]])
         local = np.arange(n, dtype=np.intp) - np.repeat(np.concatenate([[0], np.cumsum(sizes)[:-1]]), sizes)
         # pixels <= sizes, so each parameter maps to one pixel and every pixel is hit.
@@ -248,6 +271,7 @@ def render_hessian(
     max_px: int = 800,
     legend: bool = True,
     title: str | None = None,
+    focus: bool = False,
 ) -> Image.Image:
     """Render the nonzero pattern of an n×n Hessian as an RGB image.
 
@@ -261,6 +285,10 @@ def render_hessian(
             about `max_px` pixels. Separators add one pixel per group boundary.
         legend: draw a legend below the matrix (one line per non-empty group + total).
         title: optional text above the matrix.
+        focus: when the matrix is pooled (n > max_px), give the cameras and planes up to
+            half of the pixels (one per parameter when they fit) and pool the landmarks
+            into the rest, so that the camera | plane structure stays readable beside
+            thousands of landmark parameters. Off: every group in proportion to its size.
 
     Returns:
         RGB `PIL.Image.Image`: white canvas, matrix at `(MARGIN_PX, MARGIN_PX + title
@@ -269,7 +297,7 @@ def render_hessian(
     """
     if int(max_px) != max_px or max_px < 1:
         raise ValueError(f"max_px must be a positive integer, got {max_px!r}")
-    codes, nnz = _matrix_codes(pattern, groups, int(max_px))
+    codes, nnz = _matrix_codes(pattern, groups, int(max_px), focus=focus)
     matrix_px = codes.shape[0]
 
     reference = max(matrix_px, 300)
@@ -342,8 +370,9 @@ def write_hessian_png(
     pathlib.Path(path).write_bytes(data)
 
 
-def render_side_by_side(images: Sequence[Image.Image], *, labels: Sequence[str]) -> Image.Image:
-    """Place images left to right, top-aligned, each with its label centred above it.
+def render_side_by_side(images: Sequence[Image.Image], *, labels: Sequence[str], font_px: int = 16) -> Image.Image:
+    """Place images left to right, top-aligned, each with its label centred above it
+    (`font_px` high; a label may have several lines).
 
     Each column is as wide as its image (or its label, if the label is wider); columns are
     separated by `SIDE_BY_SIDE_GAP_PX` pixels, so with short labels the width is
@@ -354,18 +383,20 @@ def render_side_by_side(images: Sequence[Image.Image], *, labels: Sequence[str])
         raise ValueError("render_side_by_side needs at least one image")
     if len(labels) != len(images):
         raise ValueError(f"got {len(images)} images but {len(labels)} labels")
-    font = _font(16)
-    label_h = max((_text_size(font, label)[1] for label in labels), default=0)
+    font = _font(font_px)
+    line_h = _line_height(font)
+    label_h = max((line_h * len(label.splitlines()) for label in labels if label), default=0)
     band = label_h + MARGIN_PX // 2 if label_h else 0
-    columns = [max(im.width, _text_size(font, label)[0]) for im, label in zip(images, labels)]
+    widths = [max((_text_size(font, part)[0] for part in label.splitlines()), default=0) for label in labels]
+    columns = [max(im.width, w) for im, w in zip(images, widths)]
     width = sum(columns) + SIDE_BY_SIDE_GAP_PX * (len(images) - 1)
     height = band + max(im.height for im in images)
     canvas = Image.new("RGB", (width, height), BACKGROUND_COLOR)
     draw = ImageDraw.Draw(canvas)
     x = 0
     for im, label, column in zip(images, labels, columns):
-        if label:
-            draw.text((x + (column - _text_size(font, label)[0]) // 2, 0), label, fill=TEXT_COLOR, font=font)
+        for row, part in enumerate(label.splitlines()):
+            draw.text((x + (column - _text_size(font, part)[0]) // 2, row * line_h), part, fill=TEXT_COLOR, font=font)
         canvas.paste(im.convert("RGB"), (x + (column - im.width) // 2, band))
         x += column + SIDE_BY_SIDE_GAP_PX
     return canvas

@@ -8,7 +8,9 @@ Ground truth, where the input has it, travels in every snapshot (`Snapshot.groun
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+import copy
+from collections.abc import Iterable
+from typing import Any, Protocol, runtime_checkable
 
 from backend.optim.structure import HessianStructure
 from backend.pipeline.snapshot import Snapshot
@@ -52,3 +54,27 @@ class Engine(Protocol):
     def compare_hessians(self, variants: tuple[str, ...]) -> dict[str, HessianStructure]:
         """The current window linearized under each of `variants` (same data)."""
         ...
+
+    def checkpoint(self) -> object:
+        """The engine's state now (map, window, estimates, position in the input), to be
+        given back to :meth:`restore`: the debugger re-optimizes every variant from the same
+        state and returns to a variant's result without recomputing it."""
+        ...
+
+    def restore(self, state: object) -> None:
+        """Return to a state from :meth:`checkpoint` (any number of times)."""
+        ...
+
+
+def checkpoint_of(engine: object, *, shared: Iterable[str]) -> dict[str, Any]:
+    """A deep copy of an engine's attributes except those named in `shared` (the input,
+    settings, callbacks and immutable snapshots, which are kept by reference)."""
+    keep = set(shared)
+    state = vars(engine)
+    return {"copied": copy.deepcopy({k: v for k, v in state.items() if k not in keep}), "shared": {k: state[k] for k in keep if k in state}}
+
+
+def restore_from(engine: object, checkpoint: dict[str, Any]) -> None:
+    """Put a :func:`checkpoint_of` state back (copied again, so it can be restored again)."""
+    vars(engine).update(copy.deepcopy(checkpoint["copied"]))
+    vars(engine).update(checkpoint["shared"])

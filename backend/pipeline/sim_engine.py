@@ -39,7 +39,7 @@ from backend.optim.problem import VARIANTS, Observations, Odometry, PosePrior, P
 from backend.optim.solver import optimize
 from backend.optim.structure import HessianStructure, hessian_structure
 from backend.pipeline.buffers import RowBuffer
-from backend.pipeline.engine import EndOfSequence
+from backend.pipeline.engine import EndOfSequence, checkpoint_of, restore_from
 from backend.pipeline.snapshot import (
     Detection,
     LineLandmarks,
@@ -158,6 +158,12 @@ class SimEngine:
     def set_variant(self, name: str) -> None:
         parse_variant(name)
         self._variant = name
+
+    def checkpoint(self) -> object:
+        return checkpoint_of(self, shared=("settings", "_world", "_last"))
+
+    def restore(self, state: object) -> None:
+        restore_from(self, state)  # type: ignore[arg-type]
 
     def reset(self) -> None:
         w = self._world

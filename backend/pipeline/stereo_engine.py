@@ -69,7 +69,7 @@ from backend.optim.problem import Observations, ProblemData, build_problem, pars
 from backend.optim.solver import optimize
 from backend.optim.structure import HessianStructure, hessian_structure
 from backend.pipeline.buffers import RowBuffer
-from backend.pipeline.engine import EndOfSequence
+from backend.pipeline.engine import EndOfSequence, checkpoint_of, restore_from
 from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED, draw_keyframe_image
 from backend.pipeline.snapshot import (
     Detection,
@@ -271,6 +271,12 @@ class StereoEngine:
     def set_variant(self, name: str) -> None:
         parse_variant(name)
         self._variant = name
+
+    def checkpoint(self) -> object:
+        return checkpoint_of(self, shared=("data_source", "settings", "_name", "segmenter", "camera", "on_frame", "_last"))
+
+    def restore(self, state: object) -> None:
+        restore_from(self, state)  # type: ignore[arg-type]
 
     def reset(self) -> None:
         self._next_frame = 0

@@ -1,0 +1,115 @@
+"""The debugger's text panels (markdown): the report of a snapshot, the variants computed at
+one keyframe side by side, the A/B run's differences; and the TUM text of an export."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+
+from backend.pipeline.snapshot import Snapshot, Trajectory
+from viewer import images
+
+#: Stage names of `OptimizationReport.timing_ms` as the report's timing table shows them.
+STAGE_LABELS = {
+    "load": "reading images", "point_dm": "point D&M", "tracking": "tracking", "line_dm": "line D&M", "mapping": "mapping",
+    "plane_seg": "plane segmentation", "plane_fit": "plane fitting", "setup": "problem set-up", "linearize": "linearize",
+    "solve": "solve", "update": "update", "optimization": "optimization", "culling": "culling", "image": "keyframe image",
+    "total": "total", "total_per_frame": "total per frame",
+}
+
+
+def _num(value: float, digits: int = 2) -> str:
+    return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def timing_table(timing_ms: dict[str, float]) -> str:
+    """The stage times as a two-column table (ms), in the pipeline's order."""
+    rows = "\n".join(f"| {STAGE_LABELS.get(k, k)} | {v:.1f} |" for k, v in timing_ms.items())
+    return f"| stage | ms |\n|---|---|\n{rows}"
+
+
+def report_markdown(s: Snapshot) -> str:
+    """Everything about one snapshot: solve, trajectory error, map, detection, timing."""
+    r = s.report
+    det = s.detection
+    rows = "\n".join(
+        f"| {q} | {c} | {i} ({100.0 * i / max(c, 1):.0f}%) | {'accepted → plane ' + str(p) if a else 'rejected'} |"
+        for q, c, i, a, p in zip(det.instance, det.candidates, det.inliers, det.accepted, det.plane)
+    )
+    detection = f"| instance | candidates | consensus | result |\n|---|---|---|---|\n{rows}" if rows else "no candidate set reached the size threshold"
+    notes = f"**{s.message}**\n\n" if s.message else ""
+    if s.tracking is not None and s.image is None:  # otherwise shown beside the image
+        notes += images.tracking_markdown(s.tracking) + "\n\n"
+    dropped = f"; {images.plural(r.dropped_landmarks, 'landmark')} left out of a step" if r.dropped_landmarks else ""
+    return (
+        f"**keyframe {s.keyframe}** · {r.variant} · window {r.window} + {r.fixed_poses} fixed\n\n"
+        f"{notes}"
+        f"{images.plural(r.iterations, 'iteration')} ({r.termination or ('converged' if r.converged else 'not converged')}{dropped}) · "
+        f"cost {r.initial_cost:.4g} → {r.final_cost:.4g}\n\n"
+        f"**trajectory error**: RMSE {s.metrics.rmse_cm:.2f} cm · ATE (SE3) {s.metrics.ate_cm:.2f} cm\n\n"
+        f"**map**: {images.plural(len(s.points), 'point')} · {images.plural(len(s.lines), 'line')} · {images.plural(len(s.planes), 'plane')}\n\n"
+        f"**co-planar detection** (θ_cp = 80 %)\n\n{detection}\n\n"
+        f"**time**\n\n{timing_table(r.timing_ms)}"
+    )
+
+
+def variants_markdown(variants: dict[str, Snapshot], *, shown: Snapshot) -> str:
+    """The variants computed at one keyframe (the stepped one first; every other one
+    re-optimized the same window from the state that step left), side by side."""
+    if not variants:
+        return "no keyframe yet"
+    first = next(iter(variants))
+    rows = []
+    for name, s in variants.items():
+        r = s.report
+        mark = " ◀ shown" if s is shown else ""
+        how = "step" if name == first else "re-optimized"
+        rows.append(
+            f"| **{name}**{mark} | {how} | {r.items} / {r.params} | {r.initial_cost:.4g} → {r.final_cost:.4g} | {r.iterations} "
+            f"| {r.timing_ms.get('optimization', float('nan')):.0f} | {_num(s.metrics.rmse_cm)} | {_num(s.metrics.ate_cm)} |"
+        )
+    return (
+        f"**keyframe {shown.keyframe}**: the variants computed here (choose another in *Variant* to add it; "
+        "every re-optimization starts from the state the step left)\n\n"
+        "| variant | from | items / params | cost | iter. | opt. ms | RMSE cm | ATE cm |\n|---|---|---|---|---|---|---|---|\n" + "\n".join(rows)
+    )
+
+
+def ab_markdown(a: Snapshot, b: Snapshot | None) -> str:
+    """The A/B run at keyframe `a.keyframe`: both runs' figures and B − A."""
+    if b is None:
+        return f"**A/B run**: B has no snapshot at keyframe {a.keyframe} (it started later, or was re-optimized only): step to see both."
+
+    def row(label: str, va: float, vb: float, digits: int = 2) -> str:
+        diff = vb - va if math.isfinite(va) and math.isfinite(vb) else float("nan")
+        return f"| {label} | {_num(va, digits)} | {_num(vb, digits)} | {_num(diff, digits)} |"
+
+    ra, rb = a.report, b.report
+    ta, tb = a.estimate.timestamp_ns[-1], b.estimate.timestamp_ns[-1]
+    same = "same frame" if ta == tb else f"different frames: A at {ta * 1e-9:.3f} s, B at {tb * 1e-9:.3f} s"
+    gap = float(np.linalg.norm(a.estimate.t_world_camera[-1] - b.estimate.t_world_camera[-1])) * 100.0
+    return (
+        f"**A/B run** at keyframe {a.keyframe} ({same}); newest cameras {gap:.2f} cm apart\n\n"
+        f"| | A: {ra.variant} | B: {rb.variant} | B − A |\n|---|---|---|---|\n"
+        + "\n".join([
+            row("RMSE (cm)", a.metrics.rmse_cm, b.metrics.rmse_cm),
+            row("ATE (cm)", a.metrics.ate_cm, b.metrics.ate_cm),
+            row("cost after", ra.final_cost, rb.final_cost, 1),
+            row("iterations", ra.iterations, rb.iterations, 0),
+            row("optimization (ms)", ra.timing_ms.get("optimization", float("nan")), rb.timing_ms.get("optimization", float("nan")), 1),
+            row("params", ra.params, rb.params, 0),
+            row("points", len(a.points), len(b.points), 0),
+            row("planes", len(a.planes), len(b.planes), 0),
+        ])
+    )
+
+
+def tum_bytes(trajectory: Trajectory) -> bytes:
+    """`trajectory` as TUM text (`t x y z qx qy qz qw`, seconds, metres)."""
+    from backend.export.tum import write_tum
+
+    buffer = io.StringIO()
+    write_tum(buffer, trajectory)
+    return buffer.getvalue().encode()
