@@ -40,6 +40,7 @@ from viewer.scene import SceneView
 
 log = logging.getLogger(__name__)
 PROGRESS_DELAY_S = 0.3
+VIEW_SETTLE_S = 1.5  # a view set by the debugger counts as untouched this long (the browser animates to it)
 AB_OFF = "off"
 SHORTCUTS = "**keys**: space play/pause · → step · shift+← / shift+→ scrub · F frame all"
 
@@ -84,7 +85,7 @@ class Debugger:
         self.history_b: dict[int, Snapshot] = {}
         # Per client: the view this debugger last set (None: the user has moved it since,
         # so it is no longer re-framed as the map grows).
-        self._auto_view: dict[int, tuple[np.ndarray, np.ndarray] | None] = {}
+        self._auto_view: dict[int, tuple[np.ndarray, np.ndarray, float] | None] = {}
         self._play_times: collections.deque[float] = collections.deque(maxlen=8)
         self._plot_request: tuple[list[Snapshot], int | None] | None = None
         self._plot_event = threading.Event()
@@ -121,7 +122,7 @@ class Debugger:
         with gui.add_folder("View"):
             self.follow = gui.add_checkbox("Follow keyframe", initial_value=False)
             self.frame_button = gui.add_button("Frame all")
-            self.reset_view_button = gui.add_button("Reset view")
+            self.reset_view_button = gui.add_button("Default view")
             self.point_scale = gui.add_slider("Point size", min=0.25, max=4.0, step=0.25, initial_value=1.0)
         with gui.add_folder("Layers"):
             self.layer_boxes = {
@@ -141,9 +142,9 @@ class Debugger:
 
         side = gui.add_panel()
         with side.add_tab("Keyframe", viser.Icon.PHOTO):
-            self.keyframe_image = gui.add_image(images.blank(), label="left image", format="jpeg", jpeg_quality=90)
-            self.tracking_text = gui.add_markdown("")
-            self.image_legend = gui.add_markdown(images.KEYFRAME_LEGEND)
+            self.keyframe_image = gui.add_image(images.blank(), label="left image", format="jpeg", jpeg_quality=90, visible=False)
+            self.tracking_text = gui.add_markdown("no keyframe yet")
+            self.image_legend = gui.add_markdown(images.KEYFRAME_LEGEND, visible=False)
         with side.add_tab("Hessian", viser.Icon.GRID_DOTS):
             self.hessian_legend = gui.add_markdown("no window optimized yet")
             self.hessian_image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
@@ -431,7 +432,8 @@ class Debugger:
             self.slider.disabled = True
             self.keyframe_label.value = "none"
             self.keyframe_image.image = images.blank()
-            self.tracking_text.content = ""
+            self.keyframe_image.visible = self.image_legend.visible = False
+            self.tracking_text.content = "no keyframe yet"
             self.hessian_image.image = images.blank()
             self.hessian_legend.content = "no window optimized yet"
             self.compare_image.image = images.blank()
@@ -483,8 +485,8 @@ class Debugger:
                 self.keyframe_image.image = images.keyframe_image(snapshot.image)
                 self.keyframe_image.label = f"keyframe {snapshot.keyframe}: left image"
                 self.tracking_text.content = images.tracking_markdown(snapshot.tracking)
-            elif self.keyframe_image.visible:
-                self.tracking_text.content = f"*{self.engine.source}: no images (features are simulated)*"
+            else:
+                self.tracking_text.content = f"*{self.engine.source}: no image for this keyframe*"
             if self.keyframe_image.visible != (snapshot.image is not None):
                 self.keyframe_image.visible = self.image_legend.visible = snapshot.image is not None
             if snapshot.hessian is not None:
@@ -553,13 +555,17 @@ class Debugger:
                 continue
             last = self._auto_view.get(client_id, "never")
             if isinstance(last, str) or (last is not None and self._view_unchanged(client, last)):
-                self._auto_view[client_id] = self._frame(client, keep_direction=False)
+                self._frame(client, keep_direction=False)
             else:
                 self._auto_view[client_id] = None
 
     @staticmethod
-    def _view_unchanged(client: viser.ClientHandle, view: tuple[np.ndarray, np.ndarray]) -> bool:
+    def _view_unchanged(client: viser.ClientHandle, view: tuple[np.ndarray, np.ndarray, float]) -> bool:
+        """The client's view is the one set last, or the browser may still be animating
+        towards it (its camera moves smoothly for about a second)."""
         cam = client.camera
+        if time.monotonic() - view[2] < VIEW_SETTLE_S:
+            return True
         return bool(np.allclose(cam.position, view[0], atol=1e-3) and np.allclose(cam.look_at, view[1], atol=1e-3))
 
     def _frame(self, client: viser.ClientHandle | None, *, keep_direction: bool) -> tuple[np.ndarray, np.ndarray] | None:
@@ -583,7 +589,7 @@ class Debugger:
         with client.atomic():  # position first: viser moves look_at along with it
             cam.position = position
             cam.look_at = look_at
-        self._auto_view[client.client_id] = (position, look_at)
+        self._auto_view[client.client_id] = (position, look_at, time.monotonic())
         return position, look_at
 
     @staticmethod

@@ -19,25 +19,24 @@ FILL = 0.8
 @dataclasses.dataclass(frozen=True)
 class Bounds:
     """A robust box around what a snapshot draws: `centre` (3,) and `radius` (m) of its
-    bounding sphere, from the 2nd to 98th percentile of the map points per axis, widened
-    to hold every keyframe position."""
+    bounding sphere, around the map points (far outliers left out) and every keyframe
+    position."""
 
     centre: np.ndarray
     radius: float
 
 
 def snapshot_bounds(snapshot: Snapshot) -> Bounds:
-    """The region to frame: the map points (outliers beyond the 2nd / 98th percentiles
-    left out) and every keyframe position."""
+    """The region to frame: every keyframe position and the map points, leaving out
+    those farther from the points' median than three times their median distance to it
+    (a few badly triangulated points must not shrink the map to a dot)."""
     t = np.asarray(snapshot.estimate.t_world_camera, float)
     p = np.asarray(snapshot.points.p_world, float)
     p = p[np.all(np.isfinite(p), axis=1)]
     parts = [t[np.all(np.isfinite(t), axis=1)]]
-    if len(p) >= 10:
-        lo, hi = np.percentile(p, [2.0, 98.0], axis=0)
-        parts.append(np.stack([lo, hi]))
-    elif len(p):
-        parts.append(p)
+    if len(p):
+        dist = np.linalg.norm(p - np.median(p, axis=0), axis=1)
+        parts.append(p[dist <= max(3.0 * float(np.median(dist)), 0.1)])
     pts = np.concatenate(parts) if any(len(x) for x in parts) else np.zeros((1, 3))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     return Bounds(centre=0.5 * (lo + hi), radius=float(max(0.5 * np.linalg.norm(hi - lo), 0.5)))

@@ -23,9 +23,10 @@ def _saturated_pixels(png: bytes) -> int:
 
 
 def _legend(page) -> tuple[str, int, int]:  # noqa: ANN001
-    """Variant, items and params of the Hessian legend shown in the panel."""
-    text = page.get_by_text(re.compile(r"^P[L]?-(wo|r|w): \d+ items, \d+ params")).first.inner_text()
-    m = re.match(r"(P[L]?-(?:wo|r|w)): (\d+) items, (\d+) params", text)
+    """Variant, items and params of the Hessian legend (its tab in the left panel)."""
+    page.get_by_role("tab", name="Hessian").click()
+    text = page.get_by_text(re.compile(r"^P[L]?-(wo|r|w): H = JᵀJ of the window, \d+ items, \d+ params")).first.inner_text()
+    m = re.match(r"(P[L]?-(?:wo|r|w)): H = JᵀJ of the window, (\d+) items, (\d+) params", text)
     assert m, text
     return m.group(1), int(m.group(2)), int(m.group(3))
 

@@ -16,13 +16,11 @@ def test_stereo_debugger_shows_keyframe_image_and_map(browser, tmp_path) -> None
     when set (docs/stereo_debugger.png), else to a temporary file."""
     from PIL import Image
 
-    from backend.data.scenes import builtin_scene
-    from backend.data.synthetic import SequenceSettings, SyntheticSequence
-    from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
+    from app.cli import build_parser
+    from app.serve_command import build_engine
     from viewer.app import Debugger
 
-    sequence = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=6.0))
-    engine = StereoEngine(sequence, settings=StereoSettings(variant="PL-w"), name="rendered scene room")
+    engine = build_engine(build_parser().parse_args(["serve", "--scene", "room", "--duration", "6"]))  # as `coplanar serve` builds it
     debugger = Debugger(engine, port=free_port())
     debugger.server.scene.configure_environment_map(hdri=None)
     try:
@@ -32,11 +30,14 @@ def test_stereo_debugger_shows_keyframe_image_and_map(browser, tmp_path) -> None
         snapshot = debugger.history[-1]
         page = open_page(browser, debugger, height=1250)
         wait_shown(page, f"{snapshot.keyframe} (PL-w)")
-        page.get_by_text("Keyframe image").first.wait_for()
+        page.get_by_role("tab", name="Keyframe").click()
+        page.get_by_text(f"keyframe {snapshot.keyframe}: left image").first.wait_for()
         # The keyframe image is on the page (an <img> with a data URL, larger than the panel's blanks).
         sizes = page.locator("img").evaluate_all("els => els.map(e => e.naturalWidth * e.naturalHeight)")
-        assert max(sizes) >= 300 * 150, sizes
-        assert page.get_by_text(f"{len(snapshot.planes)} planes").count() >= 1
+        assert max(sizes) >= 752 * 480, sizes  # sent at full size (it was 376×240)
+        page.get_by_role("tab", name="Report").click()
+        page.get_by_text(f"{len(snapshot.planes)} planes").first.wait_for()
+        page.get_by_role("tab", name="Keyframe").click()
         close_notifications(page)
         page.wait_for_timeout(1500)
         path = pathlib.Path(os.environ.get("COPLANAR_README_SCREENSHOT_STEREO", tmp_path / "stereo_debugger.png"))

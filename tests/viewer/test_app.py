@@ -97,13 +97,13 @@ def _green_column(rgb: np.ndarray) -> int:
 
 def test_keyframe_image_is_shown_and_follows_scrubbing(image_debugger) -> None:  # noqa: ANN001
     d = image_debugger
-    assert not d.image_folder.visible  # nothing shown yet
+    assert not d.keyframe_image.visible  # nothing shown yet
     for _ in range(3):
         d.submit("step")
     d.wait_idle()
     newest = d.history[-1]
     assert newest.keyframe == 2 and newest.image is not None
-    assert d.image_folder.visible
+    assert d.keyframe_image.visible
     shown = d.keyframe_image.image
     assert shown.shape == (H, W, 3)
     np.testing.assert_array_equal(shown, decode_keyframe_image(newest.image))
@@ -115,7 +115,7 @@ def test_keyframe_image_is_shown_and_follows_scrubbing(image_debugger) -> None: 
     # Scrubbing back shows the older snapshot's image and message.
     d.submit("show", 0)
     d.wait_idle()
-    assert d.image_folder.visible
+    assert d.keyframe_image.visible
     np.testing.assert_array_equal(d.keyframe_image.image, decode_keyframe_image(d.history[0].image))
     assert _green_column(d.keyframe_image.image) == 10
     assert "0 lost" in d.tracking_text.content
@@ -127,7 +127,7 @@ def test_keyframe_image_is_hidden_for_the_monte_carlo_engine(sim_debugger) -> No
     d.submit("step")
     d.wait_idle()
     assert d.history[-1].image is None and d.history[-1].tracking is None
-    assert not d.image_folder.visible
+    assert not d.keyframe_image.visible
     assert "**tracking**" not in d.report.content
 
 
@@ -135,9 +135,149 @@ def test_keyframe_image_hides_again_for_a_snapshot_without_one(image_debugger) -
     d = image_debugger
     d.submit("step")
     d.wait_idle()
-    assert d.image_folder.visible
+    assert d.keyframe_image.visible
     # A later snapshot without an image (e.g. from another engine) hides the panel.
     plain = dataclasses.replace(d.history[-1], image=None, tracking=None, message="")
     d._show(plain)
-    assert not d.image_folder.visible
+    assert not d.keyframe_image.visible
     assert "tracking lost" not in d.report.content
+
+
+def test_switching_variants_keeps_each_result_and_returns_to_it(sim_debugger) -> None:  # noqa: ANN001
+    """Cycle the six variants at the newest keyframe and return: every variant started
+    from the step's state, the stepped result comes back unchanged, and scrubbing back
+    to that keyframe later still shows any variant computed there."""
+    from backend.optim.problem import VARIANTS
+
+    d = sim_debugger
+    for _ in range(8):
+        d.submit("step")
+    d.wait_idle()
+    stepped = d.shown
+    k = stepped.keyframe
+    initial_costs = {}
+    for v in VARIANTS:
+        d.submit("variant", v)
+        d.wait_idle()
+        assert d.shown.keyframe == k and d.shown.variant == v
+        initial_costs[v] = d.shown.report.initial_cost
+    d.submit("variant", "PL-w")
+    d.wait_idle()
+    assert d.shown is stepped  # the kept snapshot, not a re-optimization of a changed state
+    assert (d.shown.report.items, d.shown.report.params) == (stepped.report.items, stepped.report.params)
+    assert set(d.history.variants_at(k)) == set(VARIANTS)
+    # The same start for every variant of one family: the state the step left.
+    assert initial_costs["P-wo"] == pytest.approx(initial_costs["P-r"], rel=0.2)
+    assert "P-wo" in d.variants_text.content and "◀ shown" in d.variants_text.content
+    # Step on with PL-r, scrub back: keyframe k shows PL-r's snapshot from before.
+    d.submit("variant", "PL-r")
+    d.submit("step")
+    d.wait_idle()
+    assert d.shown.keyframe == k + 1 and d.shown.variant == "PL-r"
+    d.submit("show", k)
+    d.wait_idle()
+    assert d.shown.keyframe == k and d.shown.variant == "PL-r"
+    assert d.shown is d.history.variants_at(k)["PL-r"]
+
+
+def test_status_is_not_overwritten_by_a_late_progress_message(sim_debugger, monkeypatch) -> None:  # noqa: ANN001
+    """The progress message (after PROGRESS_DELAY_S) must never land after the final
+    status: with the delay at 1 ms and slowed re-optimizations, 20 switches end with the
+    real status each time."""
+    import time as _time
+
+    import viewer.app as app_module
+
+    d = sim_debugger
+    d.submit("step")
+    d.wait_idle()
+    monkeypatch.setattr(app_module, "PROGRESS_DELAY_S", 0.001)
+    real = d.engine.reoptimize
+
+    def slow():  # noqa: ANN202
+        _time.sleep(0.01)
+        return real()
+
+    monkeypatch.setattr(d.engine, "reoptimize", slow)
+    for i in range(20):
+        v = ("PL-r", "P-wo", "P-r", "PL-wo")[i % 4]
+        d.submit("variant", v)
+        d.wait_idle()
+        _time.sleep(0.02)
+        assert "re-optimizing" not in d.status.content, d.status.content
+        assert f"keyframe 0 · {v}" in d.status.content
+        assert not d.progress.visible
+
+
+def test_reset_clears_what_is_shown(image_debugger) -> None:  # noqa: ANN001
+    d = image_debugger
+    for _ in range(3):
+        d.submit("step")
+    d.wait_idle()
+    assert d.scene._handles and d.keyframe_image.visible and d.report.content
+    d.submit("reset")
+    d.wait_idle()
+    assert d.shown is None and not d.history
+    assert d.scene._handles == {}
+    assert d.keyframe_label.value == "none"
+    assert not d.keyframe_image.visible and d.report.content == "" and d.variants_text.content == "no keyframe yet"
+    assert d.slider.disabled
+    assert "reset, press Step or Play" in d.status.content
+
+
+def test_ab_run_steps_both_engines_and_reports_the_difference(sim_debugger) -> None:  # noqa: ANN001
+    d = sim_debugger
+    for _ in range(3):
+        d.submit("step")
+    d.submit("ab", "P-wo")
+    for _ in range(2):
+        d.submit("step")
+    d.wait_idle()
+    a, b = d.shown, d.history_b[d.shown.keyframe]
+    assert a.variant == "PL-w" and b.variant == "P-wo" and a.keyframe == b.keyframe == 4
+    assert d.engine_b.keyframes == d.engine.keyframes == 5
+    assert "/ab/trajectory" in d.scene._handles
+    assert "A: PL-w" in d.ab_text.content and "B: P-wo" in d.ab_text.content and "same frame" in d.ab_text.content
+    d.submit("ab", "off")
+    d.wait_idle()
+    assert d.engine_b is None and "/ab/trajectory" not in d.scene._handles
+
+
+def test_plots_follow_the_shown_keyframe(sim_debugger) -> None:  # noqa: ANN001
+    import time as _time
+
+    d = sim_debugger
+    for _ in range(6):
+        d.submit("step")
+    d.wait_idle()
+
+    def settled() -> np.ndarray:
+        deadline = _time.monotonic() + 20
+        n = d.plot_updates
+        while _time.monotonic() < deadline:
+            _time.sleep(0.3)
+            if d.plot_updates == n and d._plot_request is None and not d._plot_event.is_set():
+                break
+            n = d.plot_updates
+        return np.asarray(d.plots_image.image).copy()
+
+    newest = settled()
+    assert newest.shape[0] > 300 and d.plot_updates >= 1
+    d.submit("show", 1)
+    d.wait_idle()
+    older = settled()
+    assert older.shape == newest.shape and np.any(older != newest)  # the marker moved
+
+
+def test_a_progress_message_that_fires_after_the_final_status_is_dropped(sim_debugger) -> None:  # noqa: ANN001
+    """The race behind a stale status: the progress timer's callback runs after the work
+    wrote its final status but before the worker went idle."""
+    d = sim_debugger
+    d._busy("re-optimizing the window with PL-r …")
+    late = d._progress_timer.function
+    d._progress_timer.cancel()
+    d._set_status("**done**: keyframe 3 · PL-r")
+    late()  # the timer thread wins the race
+    assert d.status.content == "**done**: keyframe 3 · PL-r"
+    assert not d.progress.visible
+    d._idle()

@@ -1,0 +1,53 @@
+"""The debugger's snapshot store: per keyframe and per variant, bounded by keyframes."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from backend.pipeline.sim_engine import SimEngine, SimSettings
+from viewer.history import SnapshotHistory
+
+
+@pytest.fixture(scope="module")
+def steps() -> list:
+    engine = SimEngine(SimSettings(window=4, max_iterations=2))
+    return [engine.step() for _ in range(4)]
+
+
+def _as(snapshot, variant: str):  # noqa: ANN001, ANN202
+    return dataclasses.replace(snapshot, report=dataclasses.replace(snapshot.report, variant=variant))
+
+
+def test_every_variant_of_a_keyframe_is_kept_and_the_stepped_one_first(steps) -> None:  # noqa: ANN001
+    h = SnapshotHistory(10)
+    for s in steps:
+        h.add_step(s)
+    k = steps[-1].keyframe
+    for v in ("P-wo", "PL-r"):
+        h.add_variant(_as(steps[-1], v))
+    assert list(h.variants_at(k)) == ["PL-w", "P-wo", "PL-r"]
+    assert h.get(k).variant == "PL-r"  # the latest computed
+    assert h.get(k, "P-wo").variant == "P-wo"
+    assert h.get(k, "P-w").variant == "PL-r"  # not computed here: the latest
+    h.choose(k, "PL-w")
+    assert h.get(k).variant == "PL-w" and h[-1].variant == "PL-w"
+    assert h.get(steps[0].keyframe, "P-wo").variant == "PL-w"  # older keyframes keep theirs
+    assert [s.keyframe for s in h.series("P-wo")] == [s.keyframe for s in steps]
+    assert h.series("P-wo")[-1].variant == "P-wo"
+
+
+def test_capacity_drops_the_oldest_keyframe_with_its_variants(steps) -> None:  # noqa: ANN001
+    h = SnapshotHistory(2)
+    h.add_step(steps[0])
+    h.add_variant(_as(steps[0], "P-w"))
+    for s in steps[1:]:
+        h.add_step(s)
+    assert len(h) == 2 and h.keyframes() == [steps[-2].keyframe, steps[-1].keyframe]
+    assert h.variants_at(steps[0].keyframe) == {}
+    assert h.get(steps[0].keyframe) is None
+    h.clear()
+    assert not h and len(h) == 0
+    with pytest.raises(ValueError):
+        SnapshotHistory(0)
