@@ -40,6 +40,8 @@ from viewer.scene import SceneView
 
 log = logging.getLogger(__name__)
 PROGRESS_DELAY_S = 0.3
+PLOT_DEBOUNCE_S = 0.4  # plots are drawn once updates pause this long
+PLOT_PLAY_PERIOD_S = 1.0  # and while playing, at most this often
 VIEW_SETTLE_S = 1.5  # a view set by the debugger counts as untouched this long (the browser animates to it)
 AB_OFF = "off"
 SHORTCUTS = "**keys**: space play/pause · → step · shift+← / shift+→ scrub · F frame all"
@@ -89,6 +91,9 @@ class Debugger:
         self._play_times: collections.deque[float] = collections.deque(maxlen=8)
         self._plot_request: tuple[list[Snapshot], int | None] | None = None
         self._plot_event = threading.Event()
+        self._working = threading.Event()  # the worker is running a command
+        self._plot_drawing = threading.Event()
+        self._worked_at = 0.0
         self.plot_updates = 0
         self.scene = SceneView(self.server)
         self._build_gui()
@@ -285,6 +290,7 @@ class Debugger:
                 from_timer = True
             if command == "stop":
                 return
+            self._working.set()
             try:
                 self._execute(command, arg)
             except Exception as exc:  # an error in a step pauses the run, the server stays up
@@ -295,6 +301,8 @@ class Debugger:
                 self._set_status(f"**error** in {command}: `{type(exc).__name__}: {exc}`. Paused; fix or Reset.")
             finally:
                 self._idle()
+                self._worked_at = time.monotonic()
+                self._working.clear()
                 if not from_timer:
                     self._commands.task_done()
 
@@ -522,20 +530,40 @@ class Debugger:
         self._plot_event.set()
 
     def _plot_loop(self) -> None:
+        """Draw the plots off the engine's thread while it waits: once it has been idle
+        for PLOT_DEBOUNCE_S (drawing takes about 150 ms of a shared CPU and must not slow
+        a burst of steps or scrubbing), and while playing between two steps at most every
+        PLOT_PLAY_PERIOD_S."""
+        last_draw = 0.0
         while not self._stopped.is_set():
             if not self._plot_event.wait(timeout=0.5):
                 continue
+            now = time.monotonic()
+            idle = not self._working.is_set() and now - self._worked_at >= PLOT_DEBOUNCE_S
+            due = self._playing.is_set() and not self._working.is_set() and now - last_draw >= PLOT_PLAY_PERIOD_S
+            if not (idle or due):
+                time.sleep(0.05)
+                continue
+            self._plot_drawing.set()
             self._plot_event.clear()
             request, self._plot_request = self._plot_request, None
-            if request is None or not request[0]:
-                continue
             try:
-                self.plots_image.image = plots_image(request[0], current=request[1])
-                self.plot_updates += 1
+                if request is not None and request[0]:
+                    self.plots_image.image = plots_image(request[0], current=request[1])
+                    self.plot_updates += 1
             except Exception:  # a plot must never stop the debugger
                 log.error("plot error:\n%s", traceback.format_exc())
-            if self._playing.is_set():
-                time.sleep(0.5)  # while playing, at most about two plot updates a second
+            finally:
+                self._plot_drawing.clear()
+            last_draw = time.monotonic()
+
+    def wait_plots(self, timeout: float = 30.0) -> None:
+        """Block until the plots show the latest request (for tests and benchmarks)."""
+        deadline = time.monotonic() + timeout
+        while self._plot_request is not None or self._plot_event.is_set() or self._plot_drawing.is_set():
+            if time.monotonic() > deadline:
+                raise TimeoutError("the plots were not drawn")
+            time.sleep(0.01)
 
     # ------------------------------------------------------------------ camera
 

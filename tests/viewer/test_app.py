@@ -244,21 +244,13 @@ def test_ab_run_steps_both_engines_and_reports_the_difference(sim_debugger) -> N
 
 
 def test_plots_follow_the_shown_keyframe(sim_debugger) -> None:  # noqa: ANN001
-    import time as _time
-
     d = sim_debugger
     for _ in range(6):
         d.submit("step")
     d.wait_idle()
 
     def settled() -> np.ndarray:
-        deadline = _time.monotonic() + 20
-        n = d.plot_updates
-        while _time.monotonic() < deadline:
-            _time.sleep(0.3)
-            if d.plot_updates == n and d._plot_request is None and not d._plot_event.is_set():
-                break
-            n = d.plot_updates
+        d.wait_plots()
         return np.asarray(d.plots_image.image).copy()
 
     newest = settled()
