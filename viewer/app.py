@@ -47,6 +47,15 @@ AB_OFF = "off"
 SHORTCUTS = "**keys**: space play/pause · → step · shift+← / shift+→ scrub · F frame all"
 
 
+def _has_camera(client: viser.ClientHandle) -> bool:
+    """Whether the tab has reported its camera (viser asserts on reading it before)."""
+    try:
+        client.camera.update_timestamp  # noqa: B018
+    except AssertionError:
+        return False
+    return True
+
+
 @dataclasses.dataclass(frozen=True)
 class ViewerSettings:
     """`history`: keyframes kept for scrubbing (oldest dropped first). `rate_hz`: default
@@ -87,7 +96,7 @@ class Debugger:
         self.history_b: dict[int, Snapshot] = {}
         # Per client: the view this debugger last set (None: the user has moved it since,
         # so it is no longer re-framed as the map grows).
-        self._auto_view: dict[int, tuple[np.ndarray, np.ndarray, float] | None] = {}
+        self._auto_view: dict[int, tuple[np.ndarray, np.ndarray, float, float] | None] = {}
         self._play_times: collections.deque[float] = collections.deque(maxlen=8)
         self._plot_request: tuple[list[Snapshot], int | None] | None = None
         self._plot_event = threading.Event()
@@ -568,8 +577,19 @@ class Debugger:
     # ------------------------------------------------------------------ camera
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
-        if self._shown is not None:  # else framed with the first snapshot
-            self._frame(client, keep_direction=False)
+        """Frame a new tab's view as soon as it reports its camera (its canvas size is
+        needed); a tab that connects before the first keyframe is framed with it."""
+
+        def on_camera(cam: viser.CameraHandle) -> None:
+            if self._shown is None:
+                return
+            last = self._auto_view.get(client.client_id, "never")
+            if isinstance(last, str):
+                self._frame(client, keep_direction=False)
+            elif last is not None and abs(float(cam.aspect) - last[3]) > 0.02 and self._view_unchanged(client, last):
+                self._frame(client, keep_direction=False)  # the canvas changed size (panels docked, window resized)
+
+        client.camera.on_update(on_camera)
 
     def _update_views(self, snapshot: Snapshot) -> None:
         """Views that the user has not moved keep framing the map as it grows; with
@@ -578,6 +598,8 @@ class Debugger:
         self.server.initial_camera.position = position  # also viser's own "reset view"
         self.server.initial_camera.look_at = look_at
         for client_id, client in self.server.get_clients().items():
+            if not _has_camera(client):
+                continue  # no camera reported yet: framed when it is (_on_connect)
             if self.follow.value:
                 self._follow(client, snapshot)
                 continue
@@ -588,7 +610,7 @@ class Debugger:
                 self._auto_view[client_id] = None
 
     @staticmethod
-    def _view_unchanged(client: viser.ClientHandle, view: tuple[np.ndarray, np.ndarray, float]) -> bool:
+    def _view_unchanged(client: viser.ClientHandle, view: tuple[np.ndarray, np.ndarray, float, float]) -> bool:
         """The client's view is the one set last, or the browser may still be animating
         towards it (its camera moves smoothly for about a second)."""
         cam = client.camera
@@ -603,11 +625,10 @@ class Debugger:
         snapshot = self._shown
         if client is None or snapshot is None:
             return None
+        if not _has_camera(client):  # framed once it reports its camera (_on_connect)
+            return None
         cam = client.camera
-        try:
-            fov, aspect = float(cam.fov), float(cam.aspect)
-        except AssertionError:  # the client has not reported its camera yet
-            fov, aspect = float(self.server.initial_camera.fov), 1.2
+        fov, aspect = float(cam.fov), float(cam.aspect)
         kwargs = {}
         if keep_direction:
             direction = np.asarray(cam.position, float) - np.asarray(cam.look_at, float)
@@ -617,7 +638,7 @@ class Debugger:
         with client.atomic():  # position first: viser moves look_at along with it
             cam.position = position
             cam.look_at = look_at
-        self._auto_view[client.client_id] = (position, look_at, time.monotonic())
+        self._auto_view[client.client_id] = (position, look_at, time.monotonic(), aspect)
         return position, look_at
 
     @staticmethod

@@ -146,6 +146,7 @@ def test_readme_screenshot(browser, tmp_path) -> None:  # noqa: ANN001
         debugger.wait_idle(timeout=120)
         page = open_page(browser, debugger, height=1250)
         wait_shown(page, "44 (PL-w)")
+        page.get_by_role("tab", name="Hessian").click()
         close_notifications(page)
         page.wait_for_timeout(1500)
         path = pathlib.Path(os.environ.get("COPLANAR_README_SCREENSHOT", tmp_path / "debugger.png"))

@@ -86,30 +86,38 @@ def test_first_view_frames_the_map_beside_the_panels(browser) -> None:  # noqa: 
             debugger.submit("step")
         debugger.wait_idle(timeout=120)
         wait_shown(page, "29 (PL-w)")
-        page.wait_for_timeout(800)
-        canvas = page.locator("canvas").first.bounding_box()
-        panel = page.get_by_role("button", name="Step").bounding_box()
-        assert canvas["x"] + canvas["width"] <= panel["x"] + 1  # the control panel is beside the view
-        assert canvas["x"] >= 300  # so is the left panel
-        client = next(iter(debugger.server.get_clients().values()))
-        cam = client.camera
-        b = snapshot_bounds(debugger.shown)
-        corners = b.centre + np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * (b.radius / np.sqrt(3))
-        f = cam.look_at - cam.position
-        f /= np.linalg.norm(f)
-        r = np.cross(f, [0.0, 0.0, 1.0])
-        r /= np.linalg.norm(r)
-        u = np.cross(r, f)
-        d = corners - cam.position
-        z = d @ f
-        assert np.all(z > 0)
-        ty = np.tan(cam.fov / 2)
-        ndc = np.stack([(d @ r) / z / (ty * cam.aspect), (d @ u) / z / ty], axis=1)
-        assert np.all(np.abs(ndc) <= 1.0), ndc
-        assert abs(cam.aspect - canvas["width"] / canvas["height"]) < 0.05
+        late = open_page(browser, debugger, width=1200, height=1000)  # a tab opened after the steps
+        wait_shown(late, "29 (PL-w)")
+        page.wait_for_timeout(2000)
+        for tab, client in zip((page, late), debugger.server.get_clients().values()):
+            _assert_framed(tab, client, debugger.shown)
         page.close()
+        late.close()
     finally:
         debugger.stop()
+
+
+def _assert_framed(page, client, snapshot) -> None:  # noqa: ANN001
+    canvas = page.locator("canvas").filter(visible=True).last.bounding_box()
+    panel = page.get_by_role("button", name="Step").bounding_box()
+    assert canvas["x"] + canvas["width"] <= panel["x"] + 1  # the control panel is beside the view
+    assert canvas["x"] >= 300  # so is the left panel
+    cam = client.camera
+    b = snapshot_bounds(snapshot)
+    corners = b.centre + np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * (b.radius / np.sqrt(3))
+    f = cam.look_at - cam.position
+    f /= np.linalg.norm(f)
+    r = np.cross(f, [0.0, 0.0, 1.0])
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    d = corners - cam.position
+    z = d @ f
+    assert np.all(z > 0)
+    ty = np.tan(cam.fov / 2)
+    ndc = np.stack([(d @ r) / z / (ty * cam.aspect), (d @ u) / z / ty], axis=1)
+    assert np.all(np.abs(ndc) <= 1.0), ndc
+    assert np.abs(ndc).max() > 0.3  # framed, not a dot
+    assert abs(cam.aspect - canvas["width"] / canvas["height"]) < 0.05
 
 
 def test_ab_run_draws_both_trajectories_and_fills_the_difference(browser, tmp_path) -> None:  # noqa: ANN001
