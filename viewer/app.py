@@ -159,11 +159,13 @@ class Debugger:
             self.keyframe_image = gui.add_image(images.blank(), label="left image", format="jpeg", jpeg_quality=90, visible=False)
             self.tracking_text = gui.add_markdown("no keyframe yet")
             self.image_legend = gui.add_markdown(images.KEYFRAME_LEGEND, visible=False)
+            self.enlarge_image = gui.add_button("Open the image large")
         with side.add_tab("Hessian", viser.Icon.GRID_DOTS):
             self.hessian_legend = gui.add_markdown("no window optimized yet")
             self.hessian_image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
             self.compare_box = gui.add_checkbox("Compare -wo | -r | -w", initial_value=self.settings.compare)
             self.compare_image = gui.add_image(images.blank(), label="newest window under -wo | -r | -w", format="png")
+            self.enlarge_hessian = gui.add_button("Open the Hessians large")
         with side.add_tab("Variants", viser.Icon.ARROWS_DIFF):
             self.all_button = gui.add_button("Compute all six at the newest keyframe")
             self.variants_text = gui.add_markdown("no keyframe yet")
@@ -225,6 +227,8 @@ class Debugger:
         self.export_trajectory.on_click(lambda event: self._export(event.client, "trajectory"))
         self.export_keyframes.on_click(lambda event: self._export(event.client, "keyframes"))
         self.compare_box.on_update(lambda _: self._commands.put(("compare", None)))
+        self.enlarge_image.on_click(lambda event: self._enlarge(event.client, "keyframe"))
+        self.enlarge_hessian.on_click(lambda event: self._enlarge(event.client, "hessian"))
         self.plots_box.on_update(lambda _: self._request_plots())
 
         # Keyboard shortcuts (viser's command palette binds them for every tab).
@@ -648,6 +652,32 @@ class Debugger:
         with client.atomic():  # position first: viser moves look_at along with it
             cam.position = position
             cam.look_at = look_at
+
+    # ------------------------------------------------------------------ large views
+
+    def _enlarge(self, client: viser.ClientHandle | None, what: str) -> None:
+        """A floating window (for the clicking tab only) with the keyframe image, or the
+        Hessian and the -wo | -r | -w comparison, at their full size; Close removes it."""
+        if client is None:
+            return
+        if what == "keyframe":
+            if not self.keyframe_image.visible:
+                client.add_notification("No keyframe image", "This engine's snapshots have no image.", auto_close_seconds=5.0)
+                return
+            pictures = [(self.keyframe_image.label or "keyframe image", self.keyframe_image.image)]
+        else:
+            pictures = [("H = JᵀJ of the window", self.hessian_image.image), ("the newest window under -wo | -r | -w", self.compare_image.image)]
+        panel = client.gui.add_panel()
+        with panel.add_tab("Large view", viser.Icon.ZOOM_IN):
+            for label, picture in pictures:
+                if what == "hessian":
+                    client.gui.add_image(picture, label=label, format="png")
+                else:
+                    client.gui.add_image(picture, label=label, format="jpeg", jpeg_quality=95)
+            close = client.gui.add_button("Close")
+        close.on_click(lambda _: panel.remove())
+        width = max(int(np.asarray(pictures[0][1]).shape[1]), 600)
+        panel.float(x=20, y=20, width=width + 40)
 
     # ------------------------------------------------------------------ export
 

@@ -155,6 +155,15 @@ def test_plots_change_with_the_slider_and_keys_step_and_scrub(browser, debugger)
     for k in range(6):
         page.get_by_role("button", name="Step").click()
         wait_shown(page, f"{k} (PL-w)")
+    # The Hessians open large in a floating window, and close again.
+    page.get_by_role("tab", name="Hessian").click()
+    page.get_by_role("button", name="Open the Hessians large").click()
+    page.get_by_role("tab", name="Large view").wait_for()
+    widths = page.evaluate("() => [...document.querySelectorAll('img')].map(i => i.naturalWidth)")
+    assert widths.count(max(widths)) >= 2  # the comparison twice: in its tab and in the large view
+    page.get_by_role("button", name="Close").click()
+    page.get_by_role("tab", name="Large view").wait_for(state="detached")
+
     page.get_by_role("tab", name="Plots").click()
     page.wait_for_function("() => [...document.querySelectorAll('img')].some(i => i.naturalHeight >= 700)")
     src = lambda: page.evaluate("() => [...document.querySelectorAll('img')].filter(i => i.naturalHeight >= 700).map(i => i.src)[0]")  # noqa: E731
