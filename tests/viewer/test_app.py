@@ -273,3 +273,22 @@ def test_a_progress_message_that_fires_after_the_final_status_is_dropped(sim_deb
     assert d.status.content == "**done**: keyframe 3 · PL-r"
     assert not d.progress.visible
     d._idle()
+
+
+def test_playing_shows_the_rate_achieved(sim_debugger) -> None:  # noqa: ANN001
+    import time as _time
+
+    d = sim_debugger
+    d.rate.value = 30.0  # asked for more than the engine may give
+    d.play.value = True
+    d._playing.set()
+    d.submit("wake")
+    deadline = _time.monotonic() + 20
+    while "keyframes/s" not in d.achieved.value and _time.monotonic() < deadline:
+        _time.sleep(0.05)
+    shown = d.achieved.value
+    d.play.value = False
+    d._playing.clear()
+    d.wait_idle()
+    assert shown.endswith("keyframes/s (asked 30)"), shown
+    assert 0.0 < float(shown.split()[0]) < 1000.0
