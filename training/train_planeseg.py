@@ -1,0 +1,152 @@
+"""Train the plane-instance segmenter and export it as ONNX with its contract (JSON).
+
+    .venv/bin/pip install -e .[train]      # PyTorch (CPU) and onnx: training only
+    .venv/bin/python training/train_planeseg.py                 # writes assets/planeseg.onnx and .json
+
+The same seed gives the same weights on the same machine and library versions (data,
+initialization, shuffling and augmentation are all drawn from it; PyTorch runs with
+deterministic algorithms). Rendered layouts use seeds 1000 + k for training; the
+evaluation (scripts/planeseg_eval.py) renders layouts from seed 0, never trained on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import pathlib
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "training"))
+
+import numpy as np  # noqa: E402
+
+from planeseg_data import INPUT_H, INPUT_W, OUTPUT_H, OUTPUT_W, Sample, real_samples, rendered_samples  # noqa: E402
+
+TRAIN_SEED_BASE = 1000
+DEFAULT_REAL = ROOT.parent / "shared" / "data" / "euroc_mh01_slice"
+
+
+def build_data(args: argparse.Namespace) -> list[Sample]:
+    t0 = time.perf_counter()
+    samples: list[Sample] = []
+    for chunk in range(args.layouts // 25):
+        samples += rendered_samples(TRAIN_SEED_BASE + args.seed * 100 + chunk, layouts=25, views_per_layout=args.views)
+        print(f"  rendered {len(samples)} samples ({time.perf_counter() - t0:.0f} s)", flush=True)
+    if args.real is not None and args.real.is_dir():
+        real = real_samples(args.real, every=args.real_every)
+        samples += real * args.real_repeat
+        print(f"  {len(real)} real pseudo-labelled frames of {args.real.name} (each used {args.real_repeat}×) ({time.perf_counter() - t0:.0f} s)", flush=True)
+    return samples
+
+
+def export(model, path: pathlib.Path, *, meta: dict) -> None:  # noqa: ANN001
+    import torch
+
+    model.eval()
+    dummy = torch.zeros(1, 1, INPUT_H, INPUT_W)
+    torch.onnx.export(model, (dummy,), str(path), input_names=["image"], output_names=["planar_logit", "embedding"],
+                      opset_version=17, dynamo=False, do_constant_folding=True)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    contract = {
+        "format": "coplanar plane-instance segmenter",
+        "version": 1,
+        "input": {"name": "image", "shape": [1, 1, INPUT_H, INPUT_W], "dtype": "float32", "range": [0.0, 1.0],
+                  "preprocess": "grey image resized to the input size with area averaging, divided by 255"},
+        "outputs": {
+            "planar_logit": {"shape": [1, 1, OUTPUT_H, OUTPUT_W], "meaning": "logit of 'this pixel lies on a plane'"},
+            "embedding": {"shape": [1, meta["embed_dim"], OUTPUT_H, OUTPUT_W], "meaning": "per-pixel embedding, instances by mean shift"},
+        },
+        "clustering": {"bandwidth": meta["delta_v"] * 2.0, "delta_v": meta["delta_v"], "delta_d": meta["delta_d"]},
+        "sha256": digest,
+        "training": meta,
+    }
+    path.with_suffix(".json").write_text(json.dumps(contract, indent=2) + "\n")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--layouts", type=int, default=300, help="random rooms rendered (multiple of 25)")
+    p.add_argument("--views", type=int, default=8, help="views per room")
+    p.add_argument("--real", type=pathlib.Path, default=DEFAULT_REAL, help="EuRoC folder for pseudo-labels (skipped if absent)")
+    p.add_argument("--real-every", type=int, default=1)
+    p.add_argument("--real-repeat", type=int, default=2)
+    p.add_argument("--epochs", type=int, default=24)
+    p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--lr", type=float, default=3e-3)
+    p.add_argument("--width", type=int, default=16, help="channels of the first encoder block")
+    p.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--out", type=pathlib.Path, default=ROOT / "assets" / "planeseg.onnx")
+    args = p.parse_args()
+
+    import torch
+
+    from planeseg_model import DELTA_D, DELTA_V, EMBED_DIM, PlaneNet, loss
+
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(args.threads)
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    rng = np.random.default_rng([args.seed, 0x7A1])
+    t_start = time.perf_counter()
+    print(f"building data (seed {args.seed})", flush=True)
+    samples = build_data(args)
+    images = np.stack([s.image for s in samples])
+    labels = np.stack([s.labels for s in samples]).astype(np.int64)
+    t_data = time.perf_counter() - t_start
+    print(f"{len(samples)} samples in {t_data:.0f} s; training on {args.device} with {args.threads} threads", flush=True)
+
+    device = torch.device(args.device)
+    model = PlaneNet(width=args.width).to(device)
+    opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
+    steps = args.epochs * (len(samples) // args.batch)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=steps, pct_start=0.15)
+    t_train = time.perf_counter()
+    for epoch in range(args.epochs):
+        model.train()
+        order = rng.permutation(len(samples))
+        sums = {"bce": 0.0, "disc": 0.0}
+        n = 0
+        for start in range(0, len(order) - args.batch + 1, args.batch):
+            idx = order[start : start + args.batch]
+            x = images[idx].astype(np.float32) / 255.0
+            y = labels[idx].copy()
+            flip = rng.random(len(idx)) < 0.5
+            x[flip], y[flip] = x[flip, :, ::-1], y[flip, :, ::-1]
+            gain = rng.uniform(0.75, 1.25, (len(idx), 1, 1)).astype(np.float32)
+            bias = rng.uniform(-0.1, 0.1, (len(idx), 1, 1)).astype(np.float32)
+            x = np.clip(x * gain + bias, 0.0, 1.0)
+            xt = torch.from_numpy(np.ascontiguousarray(x[:, None])).to(device)
+            yt = torch.from_numpy(np.ascontiguousarray(y)).to(device)
+            logit, emb = model(xt)
+            total, parts = loss(logit, emb, yt)
+            opt.zero_grad()
+            total.backward()
+            opt.step()
+            sched.step()
+            for k in sums:
+                sums[k] += parts[k]
+            n += 1
+        print(f"epoch {epoch + 1}/{args.epochs}: bce {sums['bce'] / n:.4f} disc {sums['disc'] / n:.4f} ({time.perf_counter() - t_train:.0f} s)", flush=True)
+    t_train = time.perf_counter() - t_train
+    model = model.cpu()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "command": "python training/train_planeseg.py " + " ".join(sys.argv[1:]),
+        "seed": args.seed, "layouts": args.layouts, "views": args.views, "real": args.real.name if args.real and args.real.is_dir() else None,
+        "samples": len(samples), "epochs": args.epochs, "batch": args.batch, "lr": args.lr, "width": args.width,
+        "embed_dim": EMBED_DIM, "delta_v": DELTA_V, "delta_d": DELTA_D, "device": args.device, "threads": args.threads,
+        "data_s": round(t_data, 1), "train_s": round(t_train, 1), "torch": torch.__version__,
+    }
+    export(model, args.out, meta=meta)
+    print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.2f} MB) and {args.out.with_suffix('.json').name}; data {t_data:.0f} s, training {t_train:.0f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
