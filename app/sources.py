@@ -73,6 +73,9 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
     p.add_argument("--mislabel", type=float, default=None,
                    help="mc-a / mc-b only: fraction of features with a wrong plane-instance label (default 0.1)")
     p.add_argument("--window", type=int, default=10, help="keyframes optimized per step (default 10)")
+    p.add_argument("--segmenter", choices=("geometric", "learned"), default=None,
+                   help="stereo pipeline: plane instances from stereo disparity (geometric, default) or from the shipped network (learned, assets/planeseg.onnx)")
+    p.add_argument("--segmenter-model", default=None, metavar="FILE.onnx", help="with --segmenter learned: another model file (its .json contract beside it)")
     p.set_defaults(duration_default=duration_default)
 
 
@@ -118,7 +121,7 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
     if args.dataset is None and scene in MC_SCENES:
         from backend.pipeline.sim_engine import SimEngine, SimSettings
 
-        _refuse(args, f"the Monte-Carlo scene {scene} (no images)", ("--duration", "--frames", "--stride", "--speed"))
+        _refuse(args, f"the Monte-Carlo scene {scene} (no images)", ("--duration", "--frames", "--stride", "--speed", "--segmenter", "--segmenter-model"))
         mislabel = 0.1 if args.mislabel is None else args.mislabel
         if not 0.0 <= mislabel <= 1.0:
             raise UsageError(f"--mislabel {args.mislabel}: must be a fraction in [0, 1]")
@@ -156,6 +159,28 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
     return _stereo_engine(source, name, args, headless=headless)
 
 
+def build_segmenter(args: argparse.Namespace):  # noqa: ANN201
+    """The plane segmenter `--segmenter` names (UsageError: a model file that cannot be
+    used, one line)."""
+    from app.cli import UsageError
+
+    kind = getattr(args, "segmenter", None) or "geometric"
+    model = getattr(args, "segmenter_model", None)
+    if kind == "geometric":
+        if model is not None:
+            raise UsageError("--segmenter-model: only with --segmenter learned")
+        from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
+
+        return GeometricPlaneSegmenter()
+    from backend.frontend.segmentation_learned import LearnedSegmenter, LearnedSegmenterSettings, ModelError
+
+    try:
+        settings = LearnedSegmenterSettings() if model is None else LearnedSegmenterSettings(model=pathlib.Path(model))
+        return LearnedSegmenter(settings=settings)
+    except ModelError as e:
+        raise UsageError(str(e)) from None
+
+
 def _stereo_engine(source, name: str, args: argparse.Namespace, *, headless: bool):  # noqa: ANN001, ANN202
     from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
 
@@ -163,4 +188,7 @@ def _stereo_engine(source, name: str, args: argparse.Namespace, *, headless: boo
         settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=True, image_scale=None, hessian=False)
     else:
         settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=False, hessian=True, image_scale=1.0)
-    return StereoEngine(source, settings=settings, name=name)
+    segmenter = build_segmenter(args)
+    if getattr(args, "segmenter", None) == "learned":
+        name = f"{name}, learned segmenter"
+    return StereoEngine(source, settings=settings, name=name, segmenter=segmenter)

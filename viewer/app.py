@@ -121,6 +121,10 @@ class Debugger:
         self.status = gui.add_markdown(f"**{self.engine.source}**: ready, press Step or Play")
         with gui.add_folder("Run"):
             self.variant = gui.add_dropdown("Variant", VARIANTS, initial_value=self.engine.variant)
+            self.segmenter = None
+            if hasattr(self.engine, "segmenter"):  # the stereo pipeline: plane instances from stereo or the network
+                current = "learned" if type(self.engine.segmenter).__name__ == "LearnedSegmenter" else "geometric"
+                self.segmenter = gui.add_dropdown("Segmenter", ("geometric", "learned"), initial_value=current)
             self.step_button = gui.add_button("Step")
             self.play = gui.add_checkbox("Play", initial_value=False)
             self.rate = gui.add_slider("Rate (Hz)", min=0.5, max=30.0, step=0.5, initial_value=self.settings.rate_hz)
@@ -190,6 +194,12 @@ class Debugger:
         def _(event: viser.GuiEvent) -> None:
             if event.client is not None:
                 self._commands.put(("variant", self.variant.value))
+
+        if self.segmenter is not None:
+            @self.segmenter.on_update
+            def _(event: viser.GuiEvent) -> None:
+                if event.client is not None:
+                    self._commands.put(("segmenter", self.segmenter.value))
 
         @self.ab_variant.on_update
         def _(event: viser.GuiEvent) -> None:
@@ -337,6 +347,8 @@ class Debugger:
                 self._show(snapshot)
         elif command == "compare":
             self._update_compare()
+        elif command == "segmenter":
+            self._set_segmenter(str(arg))
 
     def _step(self) -> None:
         self._busy(f"stepping: keyframe {self.history.newest_keyframe + 1 if self.history else 0} …")
@@ -438,6 +450,27 @@ class Debugger:
         if self.ab_variant.value != AB_OFF:
             self.ab_variant.value = AB_OFF
         self.ab_text.content = f"*{why}*"
+
+    def _set_segmenter(self, kind: str) -> None:
+        """Plane instances from the next keyframe on: stereo disparity or the network."""
+        if kind == "learned":
+            from backend.frontend.segmentation_learned import LearnedSegmenter, ModelError
+
+            try:
+                segmenter = LearnedSegmenter()
+            except ModelError as e:
+                if self.segmenter is not None:
+                    self.segmenter.value = "geometric"
+                self._set_status(f"**error**: {e}")
+                return
+        else:
+            from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
+
+            segmenter = GeometricPlaneSegmenter()
+        for engine in (self.engine, self.engine_b):
+            if engine is not None:
+                engine.segmenter = segmenter
+        self._set_status(f"plane instances from the {kind} segmenter from the next keyframe on")
 
     def _reset(self) -> None:
         self._busy("resetting …")

@@ -375,3 +375,40 @@ def test_bad_stride_is_one_error_line(argv: list[str], words: list[str], tmp_pat
     assert len(err) == 1 and err[0].startswith("error:")
     assert all(w in err[0] for w in words)
     assert not (tmp_path / "run").exists()
+
+
+def test_learned_segmenter_runs_the_stereo_pipeline(tmp_path: pathlib.Path) -> None:
+    out = tmp_path / "run"
+    assert cli.main(["run", "--scene", "room", "--duration", "3", "--segmenter", "learned", "--variant", "PL-w", "--out", str(out)]) == 0
+    metrics = _strict_json((out / "metrics.json").read_text())
+    assert "learned segmenter" in metrics["source"]
+    assert metrics["planes"] >= 2 and metrics["timing_ms"]["plane_seg"] > 0
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--scene", "room", "--segmenter-model", "x.onnx"], ["--segmenter-model", "only with --segmenter learned"]),
+    (["--scene", "mc-a", "--segmenter", "learned"], ["--segmenter", "mc-a"]),
+    (["--scene", "room", "--segmenter", "learned", "--segmenter-model", "MISSING"], ["MISSING", "model file missing"]),
+])
+def test_bad_segmenter_options_are_one_error_line(argv: list[str], words: list[str], tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = [str(tmp_path / "none.onnx") if a == "MISSING" else a for a in argv]
+    words = [str(tmp_path / "none.onnx") if w == "MISSING" else w for w in words]
+    assert cli.main(["run", *argv, "--variant", "PL-w", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:"), err
+    assert all(w in err[0] for w in words), err[0]
+    assert not (tmp_path / "run").exists()
+
+
+def test_corrupt_segmenter_model_is_one_error_line(tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import shutil
+
+    from backend.frontend.segmentation_learned import DEFAULT_MODEL
+
+    model = tmp_path / "bad.onnx"
+    model.write_bytes(b"garbage" * 100)
+    shutil.copy(DEFAULT_MODEL.with_suffix(".json"), model.with_suffix(".json"))
+    assert cli.main(["run", "--scene", "room", "--segmenter", "learned", "--segmenter-model", str(model), "--variant", "PL-w", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.onnx: not a loadable ONNX model" in err[0]
+    assert not (tmp_path / "run").exists()

@@ -292,3 +292,22 @@ def test_playing_shows_the_rate_achieved(sim_debugger) -> None:  # noqa: ANN001
     d.wait_idle()
     assert shown.endswith("keyframes/s (asked 30)"), shown
     assert 0.0 < float(shown.split()[0]) < 1000.0
+
+
+def test_the_segmenter_can_be_switched_in_the_debugger() -> None:
+    from app.cli import build_parser
+    from app.serve_command import build_engine
+    from backend.frontend.segmentation_learned import LearnedSegmenter
+
+    engine = build_engine(build_parser().parse_args(["serve", "--scene", "room", "--duration", "2"]))
+    d = _debugger(engine)
+    try:
+        assert d.segmenter is not None and d.segmenter.value == "geometric"
+        d.submit("segmenter", "learned")
+        d.submit("step")
+        d.wait_idle(timeout=120)
+        assert isinstance(engine.segmenter, LearnedSegmenter)
+        assert d.shown is not None and d.shown.image is not None
+        assert d.shown.detection.instance  # the learned instances reached the co-planar detection
+    finally:
+        d.stop()

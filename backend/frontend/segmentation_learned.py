@@ -1,0 +1,165 @@
+"""The learned plane-instance segmenter (paper §III-A, a simplified PlaneAE): a small
+encoder-decoder network, shipped as ONNX in `assets/` and run with onnxruntime, predicts a
+planar mask and a per-pixel embedding at half its input resolution; mean shift clusters
+the embeddings of planar pixels into instances.
+
+Works on the left image alone (no stereo), so the VIO can use it. The model's contract
+(input and output names and shapes) lives in a JSON file beside it and is checked when the
+model is loaded: a missing, corrupt or mismatched file raises :class:`ModelError` with one
+line naming the file and what is wrong. The network was trained by
+`training/train_planeseg.py` (PyTorch, training time only; never imported here).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+
+import cv2
+import numpy as np
+
+from backend.frontend.segmentation import NO_PLANE, PlaneMasks
+from backend.geometry.camera import PinholeCamera
+
+DEFAULT_MODEL = pathlib.Path(__file__).resolve().parents[2] / "assets" / "planeseg.onnx"
+
+
+class ModelError(ValueError):
+    """A model file that cannot be used (one line: the file and what is wrong)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnedSegmenterSettings:
+    """`bandwidth`: mean-shift radius in embedding space (None: the model's, from its
+    JSON); `planar_threshold`: probability above which a pixel is planar; `seeds`: planar
+    pixels that seed the modes (a random subset, fixed by `seed`); `iterations` of mean
+    shift; `min_share`: smallest instance kept, as a fraction of the image; `threads`:
+    onnxruntime's intra-op threads (2 cores here: one keeps the other for tracking)."""
+
+    model: pathlib.Path = DEFAULT_MODEL
+    bandwidth: float | None = None
+    planar_threshold: float = 0.5
+    seeds: int = 150
+    sample: int = 1500
+    iterations: int = 8
+    min_share: float = 0.01
+    threads: int = 1
+    seed: int = 0
+
+
+def load_contract(model: pathlib.Path) -> dict:
+    """The model's JSON contract, checked against the ONNX file's inputs and outputs is
+    done by :class:`LearnedSegmenter`; here: present, parseable, with the keys used."""
+    path = pathlib.Path(model).with_suffix(".json")
+    if not pathlib.Path(model).is_file():
+        raise ModelError(f"{model}: model file missing")
+    if not path.is_file():
+        raise ModelError(f"{path}: model contract missing (the JSON beside the .onnx file)")
+    try:
+        contract = json.loads(path.read_text())
+        _ = contract["input"]["name"], contract["input"]["shape"], contract["outputs"]["planar_logit"]["shape"], contract["outputs"]["embedding"]["shape"]
+    except (ValueError, KeyError, TypeError) as e:
+        raise ModelError(f"{path}: not a segmenter contract ({type(e).__name__}: {e})") from None
+    return contract
+
+
+class LearnedSegmenter:
+    """`PlaneSegmenter` with the shipped network (module docstring)."""
+
+    def __init__(self, *, settings: LearnedSegmenterSettings = LearnedSegmenterSettings()) -> None:
+        import onnxruntime as ort
+
+        self.settings = settings
+        model = pathlib.Path(settings.model)
+        self.contract = load_contract(model)
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = settings.threads
+        options.inter_op_num_threads = 1
+        options.log_severity_level = 3
+        try:
+            self._session = ort.InferenceSession(str(model), sess_options=options, providers=["CPUExecutionProvider"])
+        except Exception as e:  # onnxruntime raises its own types for corrupt files
+            raise ModelError(f"{model}: not a loadable ONNX model ({' '.join(str(e).split())[:160]})") from None
+        self._check(model)
+        _, _, self.input_h, self.input_w = self.contract["input"]["shape"]
+        _, self.embed_dim, self.output_h, self.output_w = self.contract["outputs"]["embedding"]["shape"]
+        self.bandwidth = float(settings.bandwidth if settings.bandwidth is not None else self.contract["clustering"]["bandwidth"])
+
+    def _check(self, model: pathlib.Path) -> None:
+        c = self.contract
+        inputs = {i.name: i.shape for i in self._session.get_inputs()}
+        outputs = {o.name: o.shape for o in self._session.get_outputs()}
+        name = c["input"]["name"]
+        if list(inputs) != [name] or list(inputs[name]) != list(c["input"]["shape"]):
+            raise ModelError(f"{model}: input {dict(inputs)} does not match its contract ({name}: {c['input']['shape']})")
+        for out in ("planar_logit", "embedding"):
+            if out not in outputs or list(outputs[out]) != list(c["outputs"][out]["shape"]):
+                raise ModelError(f"{model}: output {out} is {outputs.get(out)}, its contract says {c['outputs'][out]['shape']}")
+
+    def predict(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Planar probability (h, w) and embeddings (h, w, D) at the output resolution of a
+        grey uint8 image (H, W) of any size."""
+        if image.ndim != 2 or image.dtype != np.uint8:
+            raise ValueError(f"expected a grey uint8 (H, W) image, got {image.shape} {image.dtype}")
+        x = cv2.resize(image, (self.input_w, self.input_h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+        logit, emb = self._session.run(None, {self.contract["input"]["name"]: x[None, None]})
+        prob = 1.0 / (1.0 + np.exp(-logit[0, 0]))
+        return prob, np.moveaxis(emb[0], 0, -1)
+
+    def segment(self, left: np.ndarray, right: np.ndarray, camera: PinholeCamera) -> PlaneMasks:
+        """Instance masks of the left image (`right` and `camera` are not needed)."""
+        prob, emb = self.predict(left)
+        labels = cluster_embeddings(emb, prob >= self.settings.planar_threshold, bandwidth=self.bandwidth, seeds=self.settings.seeds,
+                                    iterations=self.settings.iterations, min_share=self.settings.min_share, seed=self.settings.seed,
+                                    sample=self.settings.sample)
+        H, W = left.shape
+        full = cv2.resize(labels.astype(np.int16), (W, H), interpolation=cv2.INTER_NEAREST)
+        return PlaneMasks(labels=full.astype(np.int16))
+
+
+def cluster_embeddings(embedding: np.ndarray, planar: np.ndarray, *, bandwidth: float, seeds: int = 150, iterations: int = 8,
+                       min_share: float = 0.01, seed: int = 0, sample: int = 1500) -> np.ndarray:
+    """Instances (h, w) int16 (`NO_PLANE` elsewhere) from embeddings (h, w, D) of the
+    `planar` pixels: flat-kernel mean shift over a random `sample` of them from `seeds` of
+    those (vectorized over seeds), modes closer than `bandwidth` merged, each planar pixel given to its nearest
+    mode if within `1.5 bandwidth`; instances under `min_share` of the image dropped and
+    the rest numbered by size (largest first)."""
+    h, w, D = embedding.shape
+    labels = np.full((h, w), NO_PLANE, np.int16)
+    idx = np.flatnonzero(planar.reshape(-1))
+    if len(idx) == 0:
+        return labels
+    points = embedding.reshape(-1, D)[idx].astype(np.float32)
+    rng = np.random.default_rng(seed)
+    density = points[rng.choice(len(points), size=min(sample, len(points)), replace=False)]  # the density mean shift climbs
+    modes = density[rng.choice(len(density), size=min(seeds, len(density)), replace=False)]
+    b2 = bandwidth * bandwidth
+    density_sq = (density**2).sum(1)
+    for _ in range(iterations):
+        near = (_sq_dist(modes, density, density_sq) <= b2).astype(np.float32)
+        count = near.sum(1, keepdims=True)
+        modes = np.where(count > 0, (near @ density) / np.maximum(count, 1), modes)
+    # Merge modes: greedily, the most supported first.
+    support = (_sq_dist(modes, density, density_sq) <= b2).sum(1)
+    centres: list[np.ndarray] = []
+    for m in modes[np.argsort(-support)]:
+        if all(((m - c) ** 2).sum() > b2 for c in centres):
+            centres.append(m)
+    C = np.stack(centres)
+    d2 = _sq_dist(points, C, (C**2).sum(1))
+    nearest = d2.argmin(1)
+    ok = d2[np.arange(len(points)), nearest] <= (1.5 * bandwidth) ** 2
+    assign = np.where(ok, nearest, -1)
+    counts = np.bincount(assign[assign >= 0], minlength=len(C))
+    keep = [c for c in np.argsort(-counts) if counts[c] >= min_share * h * w]
+    remap = np.full(len(C), -1, np.int64)
+    remap[keep] = np.arange(len(keep))
+    flat = labels.reshape(-1)
+    flat[idx] = np.where(assign >= 0, remap[np.maximum(assign, 0)], -1)
+    return flat.reshape(h, w)
+
+
+def _sq_dist(a: np.ndarray, b: np.ndarray, b_sq: np.ndarray) -> np.ndarray:
+    """Squared distances (len(a), len(b)) through one matrix product (no (A, B, D) temporary)."""
+    return np.maximum((a**2).sum(1)[:, None] + b_sq[None, :] - 2.0 * (a @ b.T), 0.0)

@@ -1,0 +1,100 @@
+"""The learned plane segmenter: the shipped model and its contract, bad model files, mean
+shift, and instances on a rendered frame (onnxruntime only: the tests never need torch)."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import shutil
+
+import numpy as np
+import pytest
+
+from backend.frontend.segmentation import NO_PLANE
+from backend.frontend.segmentation_learned import DEFAULT_MODEL, LearnedSegmenter, LearnedSegmenterSettings, ModelError, cluster_embeddings
+
+
+@pytest.fixture(scope="module")
+def segmenter() -> LearnedSegmenter:
+    return LearnedSegmenter()
+
+
+def test_the_shipped_model_matches_its_contract(segmenter: LearnedSegmenter) -> None:
+    contract = json.loads(DEFAULT_MODEL.with_suffix(".json").read_text())
+    import hashlib
+
+    assert contract["sha256"] == hashlib.sha256(DEFAULT_MODEL.read_bytes()).hexdigest()
+    assert DEFAULT_MODEL.stat().st_size < 8e6  # a few MB
+    prob, emb = segmenter.predict(np.full((480, 752), 128, np.uint8))
+    assert prob.shape == tuple(contract["outputs"]["planar_logit"]["shape"][2:])
+    assert emb.shape == (*prob.shape, contract["outputs"]["embedding"]["shape"][1])
+    assert np.all((prob >= 0) & (prob <= 1))
+    assert "train_planeseg.py" in contract["training"]["command"]
+
+
+def _copy(tmp_path: pathlib.Path) -> pathlib.Path:
+    model = tmp_path / "model.onnx"
+    shutil.copy(DEFAULT_MODEL, model)
+    shutil.copy(DEFAULT_MODEL.with_suffix(".json"), model.with_suffix(".json"))
+    return model
+
+
+def test_bad_model_files_give_one_line(tmp_path: pathlib.Path) -> None:
+    model = _copy(tmp_path)
+    model.write_bytes(b"\x08\x07 not an onnx model" * 10)
+    with pytest.raises(ModelError, match="model.onnx: not a loadable ONNX model") as e:
+        LearnedSegmenter(settings=LearnedSegmenterSettings(model=model))
+    assert "\n" not in str(e.value)
+
+    model = _copy(tmp_path)
+    contract = json.loads(model.with_suffix(".json").read_text())
+    contract["input"]["shape"] = [1, 1, 256, 384]  # a model of another shape than its contract says
+    model.with_suffix(".json").write_text(json.dumps(contract))
+    with pytest.raises(ModelError, match=r"model.onnx: input .* does not match its contract"):
+        LearnedSegmenter(settings=LearnedSegmenterSettings(model=model))
+
+    model.with_suffix(".json").write_text("{not json")
+    with pytest.raises(ModelError, match="model.json: not a segmenter contract"):
+        LearnedSegmenter(settings=LearnedSegmenterSettings(model=model))
+    model.with_suffix(".json").unlink()
+    with pytest.raises(ModelError, match="model contract missing"):
+        LearnedSegmenter(settings=LearnedSegmenterSettings(model=model))
+    with pytest.raises(ModelError, match="model file missing"):
+        LearnedSegmenter(settings=LearnedSegmenterSettings(model=tmp_path / "none.onnx"))
+
+
+def test_mean_shift_separates_embedding_clusters() -> None:
+    rng = np.random.default_rng(0)
+    h, w = 40, 60
+    truth = np.zeros((h, w), int)
+    truth[:, 20:40] = 1
+    truth[:, 40:] = 2
+    truth[:5] = -1  # not planar
+    centres = np.array([[0.0, 0.0, 0.0, 0.0], [3.0, 0.0, 0.0, 0.0], [0.0, 3.0, 0.0, 0.0]])
+    emb = centres[np.maximum(truth, 0)] + rng.normal(0, 0.15, (h, w, 4))
+    labels = cluster_embeddings(emb, truth >= 0, bandwidth=1.0)
+    assert np.all(labels[truth < 0] == NO_PLANE)
+    for k in range(3):
+        found = np.unique(labels[truth == k])
+        assert len(found) == 1 and found[0] >= 0
+    assert len(np.unique(labels[truth >= 0])) == 3
+    assert cluster_embeddings(emb, np.zeros((h, w), bool), bandwidth=1.0).max() == NO_PLANE
+
+
+def test_rendered_room_walls_and_floor_are_found(segmenter: LearnedSegmenter) -> None:
+    """A frame of the built-in room (never trained on): the planar mask covers the planes
+    and the large planes each get one instance."""
+    from backend.data.render import NON_PLANAR_ID
+    from backend.data.scenes import builtin_scene
+    from backend.data.synthetic import SequenceSettings, SyntheticSequence
+
+    seq = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=4.0))
+    view = seq.views(40)[0]
+    masks = segmenter.segment(view.image, view.image, seq.camera)
+    assert masks.labels.shape == view.image.shape
+    planar, truth = masks.labels >= 0, view.plane_id != NON_PLANAR_ID
+    assert np.count_nonzero(planar & truth) / np.count_nonzero(planar | truth) > 0.8
+    ids, counts = np.unique(view.plane_id[truth], return_counts=True)
+    for i in ids[counts > 0.08 * truth.size]:
+        found, overlap = np.unique(masks.labels[(view.plane_id == i) & planar], return_counts=True)
+        assert overlap.max() > 0.5 * np.count_nonzero(view.plane_id == i), (i, found, overlap)
