@@ -39,9 +39,9 @@ from backend.pipeline.engine import EndOfSequence  # noqa: E402
 MIN_SHARE = 0.05
 
 
-def run_one(scene: str, variant: str, duration: float) -> dict:
+def run_one(scene: str, variant: str, duration: float, *, extra: tuple[str, ...] = ()) -> dict:
     with tempfile.TemporaryDirectory() as out:
-        args = build_parser().parse_args(["run", "--scene", scene, "--variant", variant, "--duration", str(duration), "--out", out])
+        args = build_parser().parse_args(["run", "--scene", scene, "--variant", variant, "--duration", str(duration), "--out", out, *extra])
     engine = build_engine(args, headless=True)
     steps, lost, snapshot = [], 0, None
     t0 = time.perf_counter()

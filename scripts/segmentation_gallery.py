@@ -41,6 +41,17 @@ def overlay(image: np.ndarray, masks: PlaneMasks, *, alpha: float = 0.45) -> np.
     return rgb.astype(np.uint8)
 
 
+def real_pairs():  # noqa: ANN201
+    """(index, rectified left, rectified right, rectified camera, R_world_rect0) of each pair."""
+    rect = stereo_rectification(read_camera_yaml(PAIRS / "sensorLeft.yaml"), read_camera_yaml(PAIRS / "sensorRight.yaml"))
+    poses = read_indexed_poses(PAIRS / "groundtruth_from_openvins_original.txt")
+    for i in sorted(poses):
+        raw0 = cv2.imread(str(PAIRS / f"left_img_{i}.png"), cv2.IMREAD_GRAYSCALE)
+        raw1 = cv2.imread(str(PAIRS / f"right_img_{i}.png"), cv2.IMREAD_GRAYSCALE)
+        left, right = rect.rectify(raw0, raw1)
+        yield i, left, right, rect.camera, (poses[i] @ rect.T_body_rect0)[:3, :3]
+
+
 def main() -> int:
     if not PAIRS.is_dir():
         print(f"no EuRoC pairs at {PAIRS}", file=sys.stderr)
