@@ -429,10 +429,13 @@ class Debugger:
                 self._show(self._shown)
             return
         parse_variant(name)
+        if not hasattr(self.engine, "checkpoint"):  # a copy would share the engine's state
+            self._stop_ab(f"{self.engine.source}: this engine cannot be copied for an A/B run")
+            self._set_status(f"**A/B run**: {self.engine.source} cannot be copied (no checkpoint)")
+            return
         self._busy(f"starting the A/B run with {name} …")
         engine_b = copy.copy(self.engine)
-        if hasattr(self.engine, "checkpoint"):
-            engine_b.restore(self.engine.checkpoint())
+        engine_b.restore(self.engine.checkpoint())
         engine_b.set_variant(name)
         self.engine_b = engine_b
         if self.ab_variant.value != name:

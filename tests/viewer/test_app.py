@@ -311,3 +311,12 @@ def test_the_segmenter_can_be_switched_in_the_debugger() -> None:
         assert d.shown.detection.instance  # the learned instances reached the co-planar detection
     finally:
         d.stop()
+
+
+def test_ab_run_is_refused_for_an_engine_without_checkpoints(image_debugger) -> None:  # noqa: ANN001
+    d = image_debugger
+    d.submit("step")
+    d.submit("ab", "P-w")
+    d.wait_idle()
+    assert d.engine_b is None and d.ab_variant.value == "off"
+    assert "cannot be copied" in d.status.content
