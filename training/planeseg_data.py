@@ -53,7 +53,8 @@ def to_output_labels(labels: np.ndarray) -> np.ndarray:
 
 
 def random_room(rng: np.random.Generator, name: str) -> Scene:
-    """A random box-shaped room with decals, boxes, maybe a table, and non-planar clutter;
+    """A random box-shaped room with decals on the walls and patches on the floor, boxes,
+    maybe a table, and non-planar clutter;
     three in ten are open (no ceiling, one to three walls missing)."""
     X, Y, H = rng.uniform(1.8, 4.5), rng.uniform(1.8, 4.5), rng.uniform(2.3, 3.6)
     seed = int(rng.integers(1 << 30))
@@ -80,6 +81,10 @@ def random_room(rng: np.random.Generator, name: str) -> Scene:
         w, h = rng.uniform(0.4, 1.4), rng.uniform(0.4, 2.0)
         c = base + along * rng.uniform(-half + w, half - w) + _Z * rng.uniform(h / 2 + 0.1, H - h / 2 - 0.1) - n * 0.0
         rects.append(facing_rectangle(c, n, (w, h), Texture(str(rng.choice(("poster", "door"))), seed + 100 + k), pid))
+    for k in range(int(rng.integers(0, 9))):  # patches on the floor (mats, markers, carpet patterns) share its plane id
+        w, h = rng.uniform(0.15, 1.2, 2)
+        c = np.array([rng.uniform(-X + w, X - w), rng.uniform(-Y + h, Y - h), 0.0])
+        rects.append(facing_rectangle(c, _Z, (w, h), Texture(str(rng.choice(("poster", "checker", "tiles", "panels"))), seed + 300 + k, float(rng.uniform(0.003, 0.01))), 0))
     next_id = 6
     if rng.random() < 0.5:  # a table top
         c = np.array([rng.uniform(-X + 1, X - 1), rng.uniform(-Y + 1, Y - 1), rng.uniform(0.6, 0.9)])
