@@ -90,7 +90,6 @@ class Debugger:
         # each variant's re-optimization there.
         self._states_keyframe: int | None = None
         self._states: dict[str, object] = {}
-        self._base_variant = ""
         # The A/B run: a second engine on the same input in lockstep (None: off).
         self.engine_b: Engine | None = None
         self.history_b: dict[int, Snapshot] = {}
@@ -392,8 +391,8 @@ class Debugger:
         has_states = hasattr(self.engine, "checkpoint")
         if has_states and self._states_keyframe != k:
             self._states_keyframe = k
-            self._base_variant = self.engine.variant
-            self._states = {"base": self.engine.checkpoint(), self.engine.variant: self.engine.checkpoint()}
+            base = self.engine.checkpoint()  # restore() copies it again, so one serves both
+            self._states = {"base": base, self.engine.variant: base}
         kept = self.history.variants_at(k).get(name)
         if has_states and kept is not None and name in self._states:
             self.engine.restore(self._states[name])

@@ -15,6 +15,7 @@ import viser
 from backend.export.palette import plane_color
 from backend.geometry.camera import PinholeCamera
 from backend.pipeline.snapshot import INLIER, OUTLIER, Snapshot
+from viewer.framing import marker_size_m, snapshot_bounds
 
 FRUSTUM_DEPTH_M = 0.25
 INFINITE_PLANE_SIZE_M = 30.0
@@ -210,8 +211,6 @@ class SceneView:
     def draw(self, snapshot: Snapshot, *, other: Snapshot | None = None) -> None:
         """Replace the drawn map with `snapshot`'s (call inside `server.atomic()`); `other`
         (the A/B run's snapshot) adds its trajectory and newest camera in magenta."""
-        from viewer.framing import marker_size_m, snapshot_bounds
-
         self._point_size = marker_size_m(snapshot_bounds(snapshot))
         est = snapshot.estimate
         R, t = est.R_world_camera, est.t_world_camera

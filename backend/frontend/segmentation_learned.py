@@ -49,8 +49,9 @@ class LearnedSegmenterSettings:
 
 
 def load_contract(model: pathlib.Path) -> dict:
-    """The model's JSON contract, checked against the ONNX file's inputs and outputs is
-    done by :class:`LearnedSegmenter`; here: present, parseable, with the keys used."""
+    """The model's JSON contract beside `model`: both files present, the JSON parseable
+    with the keys used (its match with the ONNX file's inputs and outputs is checked by
+    :class:`LearnedSegmenter`)."""
     path = pathlib.Path(model).with_suffix(".json")
     if not pathlib.Path(model).is_file():
         raise ModelError(f"{model}: model file missing")

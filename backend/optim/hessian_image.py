@@ -195,7 +195,7 @@ def _group_pixels(sizes: np.ndarray, kinds: list[str], max_px: int, *, focus: bo
     sizes, or with `focus` the cameras and planes first (up to half of `max_px`, at
     least one pixel per parameter when they fit) and the landmarks the rest."""
     if not focus:
-        return np.maximum(_shares(sizes, max_px), 1)
+        return _shares(sizes, max_px)
     small = np.array([k in ("cameras", "planes") for k in kinds])
     c, l = int(sizes[small].sum()), int(sizes[~small].sum())
     budget_c = min(c, max_px // 2) if l else max_px

@@ -417,12 +417,7 @@ class StereoEngine:
         if len(self._frame_poses) < 2:
             return R1, t1
         (j0, R0, t0) = self._frame_poses[-2]
-        steps = (i - j1) / max(j1 - j0, 1)
-        # Through the rotation vector: products of rotations extrapolated this way would
-        # amplify rounding errors frame after frame (no longer rotations after a few hundred).
-        R_rel = so3.exp(steps * so3.log(R0.T @ R1))
-        t_rel = steps * (R0.T @ (t1 - t0))
-        return so3.project_to_so3(R1 @ R_rel), t1 + R1 @ t_rel
+        return _extrapolate(R0, t0, R1, t1, (i - j1) / max(j1 - j0, 1))
 
     def _track(self, i: int, kp: Keypoints) -> "_Tracked":
         """Pose of frame i against the local map (module docstring)."""
@@ -517,9 +512,7 @@ class StereoEngine:
         if not self._frame_poses or len(matched) == 0:
             return 1.0
         j, R0, t0 = self._frame_poses[-1]
-        steps = 1.0 / max(i - j, 1)
-        R_next = so3.project_to_so3(tracked.R @ so3.exp(steps * so3.log(R0.T @ tracked.R)))
-        t_next = tracked.t + tracked.R @ (steps * (R0.T @ (tracked.t - t0)))
+        R_next, t_next = _extrapolate(R0, t0, tracked.R, tracked.t, 1.0 / max(i - j, 1))
         p_cam = (self._points.p_world[self._local_points[matched]] - t_next) @ R_next
         front = p_cam[:, 2] > self.settings.min_depth_m
         uv = self.camera.project(p_cam[front])
@@ -1034,6 +1027,16 @@ class _Tracked:
     match: np.ndarray
     inliers: int
     ok: bool
+
+
+def _extrapolate(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray, steps: float) -> tuple[np.ndarray, np.ndarray]:
+    """The world pose `steps` times the motion from pose 0 to pose 1 beyond pose 1 (constant
+    velocity in the body frame). Through the rotation vector, projected back onto SO(3):
+    products of rotations extrapolated frame after frame would amplify rounding errors (no
+    longer rotations after a few hundred frames)."""
+    R_rel = so3.exp(steps * so3.log(R0.T @ R1))
+    t_rel = steps * (R0.T @ (t1 - t0))
+    return so3.project_to_so3(R1 @ R_rel), t1 + R1 @ t_rel
 
 
 def _pixel_errors(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, p_world: np.ndarray, uv: np.ndarray) -> np.ndarray:
