@@ -9,7 +9,9 @@ in README.md. Per run: keyframe ATE after SE(3) alignment (cm), frames, keyframe
 frames, the Table III stages (point D&M per frame; line D&M, plane segmentation, plane
 fitting and optimization per keyframe where the variant runs them; total per frame), and
 the planes recovered: ground-truth planes that cover at least 5 % of some keyframe's left
-image, matched by a map plane within 10° and 10 cm.
+image, matched by a map plane within 10° whose patch (the hull of its landmarks) lies within
+10 cm of the true plane (`backend.eval.planes.recovered_planes`; the JSON also keeps the
+older count by the offset at the world origin).
 """
 
 from __future__ import annotations
@@ -62,14 +64,14 @@ def run_one(scene: str, variant: str, duration: float, *, extra: tuple[str, ...]
         seen |= {int(p) for p, c in zip(ids, counts) if p >= 0 and c >= MIN_SHARE * source.camera.width * source.camera.height}
     ids = sorted(seen)
     table = source.plane_table
-    found = recovered_planes(
-        np.array([p.n for p in snapshot.planes]).reshape(-1, 3), np.array([p.d for p in snapshot.planes]),
-        np.array([table[i][:3] for i in ids]).reshape(-1, 3), np.array([table[i][3] for i in ids]),
-    )
+    est = (np.array([p.n for p in snapshot.planes]).reshape(-1, 3), np.array([p.d for p in snapshot.planes]))
+    true = (np.array([table[i][:3] for i in ids]).reshape(-1, 3), np.array([table[i][3] for i in ids]))
+    found = recovered_planes(*est, *true, hulls_est_world=[p.hull_world for p in snapshot.planes])
+    found_at_origin = recovered_planes(*est, *true)
     return {
         "scene": scene, "variant": variant, "duration_s": duration, "frames": engine.frames, "keyframes": engine.keyframes,
         "ate_cm": snapshot.metrics.ate_cm, "lost_frames": lost, "map_planes": len(snapshot.planes),
-        "planes_seen": len(ids), "planes_recovered": int(found.sum()), "timing_ms": stereo_timing(steps), "wall_s": wall,
+        "planes_seen": len(ids), "planes_recovered": int(found.sum()), "planes_recovered_by_origin_offset": int(found_at_origin.sum()), "timing_ms": stereo_timing(steps), "wall_s": wall,
     }
 
 
@@ -80,8 +82,8 @@ def _ms(value: float | None) -> str:
 def tables(results: list[dict], scenes: list[str]) -> str:
     by = {(r["scene"], r["variant"]): r for r in results}
     lines = [
-        "**Accuracy** (Table II): keyframe ATE after SE(3) alignment (cm), and the ground-truth planes recovered (map plane within "
-        "10° and 10 cm of a plane covering ≥ 5 % of some keyframe; -wo variants detect no planes).",
+        "**Accuracy** (Table II): keyframe ATE after SE(3) alignment (cm), and the ground-truth planes recovered (a map plane within "
+        "10° of a plane covering ≥ 5 % of some keyframe, its patch within 10 cm of it; -wo variants detect no planes).",
         "",
         "| variant | " + " | ".join(f"{s} ATE | {s} planes" for s in scenes) + " |",
         "|---|" + "---|---|" * len(scenes),

@@ -8,7 +8,12 @@
    instances covering at least 1 % of the image matched by a predicted instance at IoU
    >= 0.5), adjusted Rand index over the pixels planar in both, instances per frame.
 2. The four real V1_01 pairs (never trained on): the same figures against the geometric
-   (stereo) segmenter's instances, and a PNG gallery beside the geometric one.
+   (stereo) segmenter's instances, and a PNG gallery beside the geometric one; and whether
+   the floor and the main walls (other instances >= 10 % of the image) of the geometric
+   segmenter are found (`planes_found`):
+   covered at least half by learned instances that lie mostly (>= 70 %) on them, in one
+   piece or several (pieces of one plane are harmless downstream: the co-planar filter
+   merges planes that agree).
 Writes the gallery (docs/segmentation/euroc_pair_{i}_learned.png), docs/pipeline/planeseg_eval.json
 and the planeseg-eval block of README.md.
 """
@@ -29,6 +34,42 @@ import numpy as np  # noqa: E402
 from backend.frontend.segmentation_learned import LearnedSegmenter  # noqa: E402
 
 MIN_SHARE = 0.01
+WALL_SHARE = 0.10
+
+
+def planes_found(R_world_camera: np.ndarray, reference, learned) -> list[dict]:  # noqa: ANN001
+    """The floor (every reference instance whose normal is within 5° of the vertical and
+    below the camera, together: the geometric segmenter itself may split it) and each main
+    wall (any other reference instance covering >= 10 % of the image: the padded walls of
+    the V1_01 room lean, 60-80° from the horizontal) of the
+    geometric segmenter's `reference` masks: its kind, image share, the share of its pixels
+    covered by learned instances lying mostly on it (>= 70 % of their pixels that the
+    reference labels), how many such
+    pieces hold >= 5 % of it, and whether they cover at least half of it."""
+    up_camera = R_world_camera.T @ np.array([0.0, 0.0, 1.0])
+    shares = reference.fractions()
+    groups: list[tuple[str, np.ndarray]] = []
+    floor = np.zeros(reference.labels.shape, bool)
+    for r in range(reference.count):
+        n_ref, d_ref = reference.normals_camera[r], reference.offsets_camera[r]
+        cos_up = float(n_ref @ up_camera)  # d > 0: the normal points at the camera, up for a floor below it
+        tilt = np.degrees(np.arccos(min(1.0, abs(cos_up))))
+        if tilt < 5.0 and cos_up * d_ref > 0:
+            floor |= reference.mask(r)
+        elif shares[r] >= WALL_SHARE:
+            groups.append(("wall", reference.mask(r)))
+    if floor.any():
+        groups.insert(0, ("floor", floor))
+    rows = []
+    labelled = (learned.labels >= 0) & (reference.labels >= 0)  # where the reference says nothing it is no evidence
+    counts = np.bincount(learned.labels[labelled].ravel(), minlength=learned.count)
+    for kind, mask in groups:
+        inside = np.bincount(learned.labels[mask & (learned.labels >= 0)].ravel(), minlength=learned.count)
+        on_it = np.flatnonzero((inside >= 0.7 * np.maximum(counts, 1)) & (inside > 0))
+        covered = float(inside[on_it].sum() / mask.sum())
+        pieces = int(np.sum(inside[on_it] >= 0.05 * mask.sum()))
+        rows.append({"kind": kind, "share": float(mask.mean()), "covered": covered, "pieces": pieces, "found": covered >= 0.5})
+    return rows
 
 
 def instance_figures(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
@@ -123,11 +164,17 @@ def main() -> int:
 
         geo = GeometricPlaneSegmenter()
         rows = []
+        found_lines = []
         args.gallery.mkdir(parents=True, exist_ok=True)
-        for i, left, right, camera, _ in real_pairs():
-            ref = geo.segment(left, right, camera).labels
+        for i, left, right, camera, R_world_camera in real_pairs():
+            ref_masks = geo.segment(left, right, camera)
+            ref = ref_masks.labels
             masks = seg.segment(left, right, camera)
             rows.append(instance_figures(masks.labels, ref))
+            found = planes_found(R_world_camera, ref_masks, masks)
+            results[f"V1_01 pair {i} planes"] = found  # type: ignore[assignment]
+            cells = [f"{f['kind']} ({100 * f['share']:.0f} %): {'found' if f['found'] else 'missed'}, {100 * f['covered']:.0f} % in {f['pieces']} piece{'s' * (f['pieces'] != 1)}" for f in found]
+            found_lines.append(f"| {i} | " + "; ".join(cells) + " |")
             cv2.imwrite(str(args.gallery / f"euroc_pair_{i}_learned.png"), cv2.cvtColor(overlay(left, masks), cv2.COLOR_RGB2BGR))
         results["V1_01 pairs vs geometric"] = summarize(rows)
     lines = [
@@ -141,7 +188,20 @@ def main() -> int:
         "|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
+        if name.endswith(" planes"):
+            continue
         lines.append(f"| {name} | {r['frames']} | {r['planar_iou']:.3f} | {r['recall']:.3f} | {r['recall_pooled']:.3f} | {r['ari']:.3f} |")
+    if PAIRS.is_dir():
+        lines += [
+            "",
+            "Real V1_01 pairs, the floor (within 5° of the vertical by the ground-truth pose) and the main walls (its other instances "
+            "covering ≥ 10 % of the image) of the geometric segmenter, with their share of the image: found when learned instances lying mostly "
+            "(≥ 70 %) on it cover at least half of it; the share they cover and in how many pieces (instances holding ≥ 5 % of it).",
+            "",
+            "| pair | floor and main walls |",
+            "|---|---|",
+            *found_lines,
+        ]
     results["model_sha256"] = seg.contract.get("sha256")
     return publish(results, "\n".join(lines), json_name="planeseg_eval.json", block="planeseg-eval", readme=not args.no_readme)
 

@@ -130,6 +130,12 @@ def match_plane(n: np.ndarray, d: float, planes_n: np.ndarray, planes_d: np.ndar
     return int(np.flatnonzero(ok)[np.argmin(offset[ok])])
 
 
+def _agrees(n: np.ndarray, d: float, n_other: np.ndarray, d_other: float, settings: CoplanarSettings) -> bool:
+    """Whether plane (n, d) and (n_other, d_other) agree in normal (either sign) within
+    `merge_angle_deg` and in offset within `merge_offset_m`."""
+    return match_plane(n, d, np.asarray(n_other, float).reshape(1, 3), np.array([float(d_other)]), settings=settings) == 0
+
+
 def refit_plane(n_previous: np.ndarray, support_world: np.ndarray) -> tuple[np.ndarray, float] | None:
     """Least-squares plane through the support points (K, 3) (world, m), its normal on the
     side of `n_previous`; None with fewer than three finite points or a degenerate set."""
@@ -218,8 +224,9 @@ def detect_keyframe_planes(
     `segments_world` (L, 2, 3), carry the instance label of the segmentation
     (`point_label`, `line_label`, -1: none). Each instance with at least `min_candidates`
     features goes through RANSAC with Eq. 4's distance; at a consensus of θ_cp the plane is
-    accepted and merges with the plane most of its inliers already belong to, else with one
-    that agrees in normal and offset (`match_plane`), else it is added to `planes`. Inliers
+    accepted and merges with the plane most of its inliers already belong to if that plane
+    agrees with it in normal and offset, else with one that does (`match_plane`), else it
+    is added to `planes`. Inliers
     without a plane join it: `point_plane` / `line_plane` (indexed by landmark id) are
     updated in place, and so is `planes`."""
     p_state = np.zeros(len(point_ids), np.uint8)
@@ -252,9 +259,10 @@ def detect_keyframe_planes(
         gp, gl = point_ids[ip[cons.point_inlier]], line_ids[il[cons.line_inlier]]
         owners = np.concatenate([point_plane[gp], line_plane[gl]])
         owners = owners[owners >= 0]
-        if len(owners) * 2 > len(gp) + len(gl):
-            j = int(np.bincount(owners).argmax())
-        else:
+        j = int(np.bincount(owners).argmax()) if len(owners) * 2 > len(gp) + len(gl) else -1
+        if j >= 0 and not _agrees(cons.n, cons.d, planes.n[j], planes.d[j], settings):
+            j = -1  # the owners' plane is another surface (e.g. a wall whose inliers reached the floor)
+        if j < 0:
             j = match_plane(cons.n, cons.d, *planes.arrays(), settings=settings)
         if j < 0:
             j = len(planes)

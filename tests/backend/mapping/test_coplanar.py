@@ -246,3 +246,41 @@ def test_plane_hull_of_a_square_with_flipped_normal() -> None:
 def test_plane_hull_degenerate_is_empty(points: np.ndarray) -> None:
     hull = plane_hull(np.array([1.0, 0.0, 0.0]), -4.0, points)
     assert hull.shape == (0, 3)
+
+
+# ------------------------------------------------------------------ detection on a keyframe
+
+
+def _detect_floor_owned_by(plane_n: np.ndarray, plane_d: float, *, seed: int) -> tuple[coplanar.KeyframeDetection, coplanar.PlaneSet, np.ndarray]:
+    """30 floor points (z = 0 within 1 cm) as one candidate set, the first 20 of them already
+    on plane 0 = (plane_n, plane_d). Returns the detection, the planes and the assignment."""
+    rng = np.random.default_rng(seed)
+    floor = np.c_[rng.uniform(-2, 2, (30, 2)), rng.normal(0.0, 0.01, 30)]
+    planes = coplanar.PlaneSet(n=[np.asarray(plane_n, float)], d=[plane_d], consensus=[(1.0, 40)])
+    owner = np.where(np.arange(30) < 20, 0, -1)
+    det = coplanar.detect_keyframe_planes(
+        point_ids=np.arange(30), point_label=np.zeros(30, np.int64), p_world=floor,
+        line_ids=np.zeros(0, np.int64), line_label=np.zeros(0, np.int64), segments_world=np.zeros((0, 2, 3)),
+        point_plane=owner, line_plane=np.zeros(0, np.int64), planes=planes, rng=np.random.default_rng(3),
+    )
+    return det, planes, owner
+
+
+def test_detection_merges_with_the_owners_plane_when_it_agrees() -> None:
+    """Most inliers already belong to plane 0 and the consensus agrees with it: it is plane 0,
+    and the rest of the inliers join it."""
+    det, planes, owner = _detect_floor_owned_by([0.0, 0.0, 1.0], 0.02, seed=0)
+    assert det.accepted == (True,) and det.plane == (0,)
+    assert len(planes) == 1 and np.all(owner == 0)
+
+
+def test_detection_does_not_merge_a_floor_into_the_wall_that_owns_its_points() -> None:
+    """A floor candidate set whose points a wall plane had taken (a wall's inliers that reached
+    the floor): the consensus is the floor, which disagrees with the wall by 90°. It is not
+    merged into the wall (its points would be forced onto the wall in the -w solve): a new
+    plane is made, and only the points without a plane join it."""
+    det, planes, owner = _detect_floor_owned_by([0.0, 1.0, 0.0], 2.5, seed=1)
+    assert det.accepted == (True,) and det.plane == (1,)
+    assert len(planes) == 2
+    assert abs(planes.n[1][2]) > 0.999 and abs(planes.d[1]) < 0.02
+    np.testing.assert_array_equal(owner, np.where(np.arange(30) < 20, 0, 1))
