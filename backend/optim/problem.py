@@ -20,7 +20,7 @@ from backend.geometry import plane as plane_geo
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.geometry.se3 import Poses
-from backend.optim import factors, kernels
+from backend.optim import factors, inertial, kernels
 
 VARIANTS: tuple[str, ...] = ("P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w")
 VariantName = Literal["P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w"]
@@ -148,6 +148,7 @@ class ProblemData:
     sigma_rel: float = SIGMA_REL_DEFAULT  # -r: σ of (plane distance) / (anchor's distance to the plane), dimensionless
     fixed_poses: np.ndarray | None = None  # bool (N,): held constant (no columns)
     distance_prior: DistancePrior | None = None
+    inertial: "inertial.InertialData | None" = None  # VIO: velocities, biases, IMU factors, prior
 
 
 @dataclasses.dataclass
@@ -163,9 +164,14 @@ class State:
     line_phi: np.ndarray
     plane_n: np.ndarray
     plane_d: np.ndarray
+    velocity: np.ndarray | None = None  # (N, 3) m/s, world (VIO)
+    bias: np.ndarray | None = None      # (N, 6) (b_a m/s², b_g rad/s) (VIO)
 
     def copy(self) -> "State":
-        return State(self.poses.copy(), self.rho.copy(), self.line_U.copy(), self.line_phi.copy(), self.plane_n.copy(), self.plane_d.copy())
+        return State(
+            self.poses.copy(), self.rho.copy(), self.line_U.copy(), self.line_phi.copy(), self.plane_n.copy(), self.plane_d.copy(),
+            None if self.velocity is None else self.velocity.copy(), None if self.bias is None else self.bias.copy(),
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,6 +185,7 @@ class Layout:
     group_start: dict[str, int]
     group_size: dict[str, int]
     group_items: dict[str, int]
+    inertial_col: np.ndarray | None = None  # VIO: start column of each pose's (δv, δb_a, δb_g) or -1
 
     @property
     def n_params(self) -> int:
@@ -187,6 +194,13 @@ class Layout:
     @property
     def n_items(self) -> int:
         return int(sum(self.group_items.values()))
+
+    @property
+    def n_pose_params(self) -> int:
+        """Columns of the camera poses (6 each), the start of the camera group; VIO's
+        inertial states follow them inside the group."""
+        n_inertial = 0 if self.inertial_col is None else int(np.count_nonzero(self.inertial_col >= 0))
+        return self.group_size["cameras"] - 9 * n_inertial
 
     @property
     def n_landmark_params(self) -> int:
@@ -357,7 +371,10 @@ class Problem:
 
     def initial_state(self) -> State:
         d = self.data
-        return State(d.poses.copy(), d.point_rho.astype(float).copy(), d.line_U.copy(), d.line_phi.astype(float).copy(), d.plane_n.copy(), d.plane_d.astype(float).copy())
+        vel = bias = None
+        if d.inertial is not None:
+            vel, bias = d.inertial.velocity.astype(float).copy(), d.inertial.bias.astype(float).copy()
+        return State(d.poses.copy(), d.point_rho.astype(float).copy(), d.line_U.copy(), d.line_phi.astype(float).copy(), d.plane_n.copy(), d.plane_d.astype(float).copy(), vel, bias)
 
     def retract(self, state: State, delta: np.ndarray) -> State:
         """Apply a step (n_params,) to the optimized variables; the others are shared."""
@@ -387,7 +404,16 @@ class Problem:
         if len(ni):
             plane_n, plane_d = plane_n.copy(), plane_d.copy()
             plane_n[ni], plane_d[ni] = plane_geo.retract(state.plane_n[ni], state.plane_d[ni], delta[nc])
-        return State(Poses(R, t), rho, line_U, line_phi, plane_n, plane_d)
+        vel, bias = state.velocity, state.bias
+        if self.layout.inertial_col is not None and vel is not None:
+            col = self.layout.inertial_col
+            ii = np.flatnonzero(col >= 0)
+            if len(ii):
+                step = delta[col[ii][:, None] + np.arange(inertial.INERTIAL_DIM)]
+                vel, bias = vel.copy(), bias.copy()
+                vel[ii] += step[:, :3]
+                bias[ii] += step[:, 3:]
+        return State(Poses(R, t), rho, line_U, line_phi, plane_n, plane_d, vel, bias)
 
     # ------------------------------------------------------------------ world geometry
 
@@ -534,7 +560,29 @@ class Problem:
         if dp is not None and len(dp.i):
             res, J = factors.pose_distance_error(poses.t_world_camera, dp.i, dp.j, dp.distance)
             asm.add("distance_prior", res, J, [(L.pose_col[dp.i], 6), (L.pose_col[dp.j], 6)], scale=1.0 / dp.sigma)
+        if d.inertial is not None:
+            self._add_inertial(asm, state)
         return asm.build()
+
+    def _add_inertial(self, asm: "_Assembler", state: State) -> None:
+        """IMU preintegration, bias random walk and the linear (marginalization) prior."""
+        d, L = self.data, self.layout
+        ine = d.inertial
+        icol = L.inertial_col
+        R_all, t_all = state.poses.R_world_camera, state.poses.t_world_camera
+        if len(ine.imu_i):
+            i, j = ine.imu_i, ine.imu_j
+            res, J = inertial.imu_residuals(R_all, t_all, state.velocity, state.bias, ine)
+            asm.add("imu", res, J, [(L.pose_col[i], 6), (icol[i], 9), (L.pose_col[j], 6), (icol[j], 9)])
+            res, J = inertial.bias_walk_residuals(state.bias, ine)
+            asm.add("bias_walk", res, J, [(icol[i], 9), (icol[j], 9)])
+        pr = ine.prior
+        if pr is not None and len(pr.b):
+            vb = np.concatenate([state.velocity, state.bias], axis=1)[pr.inertial_index]
+            res, J = inertial.prior_residual(pr, R_all[pr.pose_index], t_all[pr.pose_index], vb, state.plane_n[pr.plane_index], state.plane_d[pr.plane_index])
+            slots = [(L.pose_col[pr.pose_index], 6), (icol[pr.inertial_index], 9), (L.plane_col[pr.plane_index], 3)]
+            cols = np.concatenate([np.where(c[:, None] >= 0, c[:, None] + np.arange(k), -1).ravel() for c, k in slots])
+            asm.add("marginalization", res[None, :], J[None, :, :], [(np.array([c]), 1) for c in cols])
 
     def _line_plane_residuals(self, state: State, pairs: np.ndarray, B_planes: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, int]]]:
         """-r line-to-plane residuals (K, 2) of the (line, plane) `pairs` (K, 2), their
@@ -651,12 +699,22 @@ def build_problem(data: ProblemData, variant: str, *, robust_px: float | None = 
     used_planes[data.point_plane[point_planar]] = True
     if with_lines:
         used_planes[data.line_plane[:n_lines][line_planar]] = True
+    if mode != "wo" and data.inertial is not None and data.inertial.prior is not None:
+        used_planes[data.inertial.prior.plane_index] = True  # a marginalization prior keeps its planes in the window
 
-    # Column layout: cameras | points | lines | planes.
+    # Column layout: cameras (poses, then VIO's inertial states) | points | lines | planes.
     pose_col = np.full(n_poses, -1)
     pose_col[~fixed] = 6 * np.arange(int(np.sum(~fixed)))
     start = {"cameras": 0}
     size = {"cameras": 6 * int(np.sum(~fixed))}
+    inertial_col = None
+    n_inertial = 0
+    if data.inertial is not None:
+        free_i = np.asarray(data.inertial.free, bool)
+        n_inertial = int(np.sum(free_i))
+        inertial_col = np.full(n_poses, -1)
+        inertial_col[free_i] = size["cameras"] + inertial.INERTIAL_DIM * np.arange(n_inertial)
+        size["cameras"] += inertial.INERTIAL_DIM * n_inertial
     point_col = np.full(n_points, -1)
     start["points"] = size["cameras"]
     point_col[point_var] = start["points"] + np.arange(int(np.sum(point_var)))
@@ -669,8 +727,8 @@ def build_problem(data: ProblemData, variant: str, *, robust_px: float | None = 
     start["planes"] = start["lines"] + size["lines"]
     plane_col[used_planes] = start["planes"] + 3 * np.arange(int(np.sum(used_planes)))
     size["planes"] = 3 * int(np.sum(used_planes))
-    items = {"cameras": int(np.sum(~fixed)), "points": size["points"], "lines": size["lines"] // 4, "planes": size["planes"] // 3}
-    layout = Layout(pose_col, point_col, line_col, plane_col, start, size, items)
+    items = {"cameras": int(np.sum(~fixed)) + n_inertial, "points": size["points"], "lines": size["lines"] // 4, "planes": size["planes"] // 3}
+    layout = Layout(pose_col, point_col, line_col, plane_col, start, size, items, inertial_col)
 
     # Observations per factor type. A point's own left anchor observation is identically
     # satisfied by construction (its ray defines it) and is dropped.

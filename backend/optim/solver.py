@@ -121,7 +121,7 @@ def solve_schur_blocks(ne: NormalBlocks, layout: Layout, *, cache: dict | None =
     envelope plan (order, panels, workspace) between iterations."""
     n = layout.n_params
     lo, mid, hi = layout.group_start["points"], layout.group_start["lines"], layout.group_start["planes"]
-    n_cameras = layout.group_size["cameras"]
+    n_cameras = layout.n_pose_params  # VIO's inertial columns join the dense border with the planes
     g = ne.g
     none = np.zeros(0, np.int64)
     if hi == lo:  # no landmark variables (-w with every feature on a plane)

@@ -193,6 +193,27 @@ class Tracking:
 
 
 @dataclasses.dataclass(frozen=True)
+class ImuState:
+    """The VIO's inertial state: whether the visual-inertial initialization succeeded, a
+    one-line status (what the start is waiting for, why an alignment was rejected, what it
+    estimated), the keyframe it succeeded at (-1: not yet) and its figures (`report`: scale,
+    gyro bias, gravity, quality; against the truth where known), and per keyframe so far the
+    velocity (K, 3) m/s in the world frame and the biases (K, 6) `(b_a m/s², b_g rad/s)`;
+    gravity in the world frame (m/s², NaN before the initialization); the true velocity and
+    biases where the input has them (rendered scenes)."""
+
+    initialized: bool
+    status: str
+    init_keyframe: int
+    report: dict
+    velocity_world: np.ndarray
+    bias: np.ndarray
+    gravity_world: np.ndarray
+    velocity_true: np.ndarray | None = None
+    bias_true: np.ndarray | None = None
+
+
+@dataclasses.dataclass(frozen=True)
 class Snapshot:
     """Everything about one keyframe step. `keyframe` is the index of the newest keyframe;
     `window` are the keyframe indices optimized in this step."""
@@ -214,6 +235,7 @@ class Snapshot:
     message: str = ""
     image: KeyframeImage | None = None   # image pipelines only
     tracking: Tracking | None = None     # image pipelines only
+    imu: ImuState | None = None          # VIO only
 
     @property
     def variant(self) -> str:

@@ -795,6 +795,7 @@ class StereoEngine:
         pts = pts[P.ok[pts]]
         lns = np.unique(np.concatenate([o.line_id for o in win]))
         lns = lns[Lm.ok[lns]]
+        pts, lns = self._window_landmarks(pts, lns, w0)
         p_local = np.full(len(P), -1)
         p_local[pts] = np.arange(len(pts))
         l_local = np.full(len(Lm), -1)
@@ -819,7 +820,7 @@ class StereoEngine:
         kfs = np.unique(np.concatenate([kf_p, kf_l, np.arange(w0, k + 1)]))
         local = np.searchsorted
         fixed = kfs < w0
-        if not np.any(fixed):
+        if not np.any(fixed) and self._fix_first_pose():
             fixed[0] = True  # the gauge: the segment's first keyframe
         # Stereo: each right-image observation is a second camera `baseline` to the right.
         offset = cam.offset_right
@@ -840,7 +841,7 @@ class StereoEngine:
 
         owner = np.concatenate([P.plane[pts], Lm.plane[lns]])
         support = np.bincount(owner[owner >= 0], minlength=len(self._planes))
-        planes = np.flatnonzero(support >= s.min_plane_support)
+        planes = self._window_planes(np.flatnonzero(support >= s.min_plane_support))
         q_local = np.full(len(self._planes) + 1, -1)
         q_local[planes] = np.arange(len(planes))
 
@@ -858,10 +859,32 @@ class StereoEngine:
         )
         return _Window(k, data, kfs, pts, lns, planes)
 
+    def _window_landmarks(self, pts: np.ndarray, lns: np.ndarray, w0: int) -> tuple[np.ndarray, np.ndarray]:
+        """The landmarks of the window's problem among those its keyframes observe (all of
+        them here; VIO leaves out those marginalized with their anchor)."""
+        return pts, lns
+
+    def _window_planes(self, planes: np.ndarray) -> np.ndarray:
+        """The planes of the window's problem (VIO adds those its prior holds)."""
+        return planes
+
+    def _fix_first_pose(self) -> bool:
+        """Whether the first window pose is held as the gauge when no older one is."""
+        return True
+
+    def _problem_data(self, win: _Window) -> ProblemData:
+        """The window's data as solved (VIO adds the inertial part)."""
+        return win.data
+
+    def _after_solve(self, win: _Window, problem, state) -> None:  # noqa: ANN001
+        """Called with the window's solution after the map is updated (VIO: velocities,
+        biases, marginalization)."""
+
     def _optimize(self, k: int, timing: dict[str, float]) -> tuple[OptimizationReport, HessianStructure | None]:
         s = self.settings
         t0 = time.perf_counter()
         win = self._window_data(k)
+        win = dataclasses.replace(win, data=self._problem_data(win))
         self._window = win
         problem = build_problem(win.data, self._variant, robust_px=s.cauchy)
         timing["setup"] = 1e3 * (time.perf_counter() - t0)
@@ -894,6 +917,7 @@ class StereoEngine:
             if used[j]:
                 self._planes.n[q], self._planes.d[q] = state.plane_n[j].copy(), float(state.plane_d[j])
         self._refit_unused_planes({int(q) for q, u in zip(win.planes, used) if u})
+        self._after_solve(win, problem, state)
         timing["update"] = 1e3 * (time.perf_counter() - t0)
         hessian = None
         if s.hessian:

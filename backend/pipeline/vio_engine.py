@@ -1,0 +1,900 @@
+"""Monocular visual-inertial odometry with the co-planar parametrization (paper §III, the VIO
+branch; DESIGN §5), one keyframe per step, implementing the same engine interface as the
+stereo pipeline (it shares its mapping, plane detection, optimizer, culling and snapshots).
+
+What differs from stereo:
+
+- **Front end.** The left image only. New points are triangulated between the previous
+  keyframe and the new one (ORB descriptors matched where the relative pose puts them on
+  each other's epipolar line, `epipolar_px`; parallax at least `min_parallax_deg`), new
+  lines likewise (LBD matches; back-projection planes at least `min_parallax_deg` apart).
+  Landmarks are anchored in the keyframe that saw them first.
+- **Start (structure from motion).** Frames are matched with the first keyframe until the
+  median rotation-compensated parallax reaches `init_parallax_px`; the essential matrix
+  (OpenCV, RANSAC) gives the second keyframe and the first points, with the median depth
+  set to `init_median_depth` (an arbitrary unit until the IMU gives the scale). Visual-only
+  windows follow (the first keyframe held, the distance of the first two fixing the scale).
+- **Initialization** (`backend.vio.alignment`, VINS-Mono's loosely coupled alignment): once
+  `init_keyframes` keyframes span at least `init_min_span_s`, the gyroscope bias, gravity,
+  the scale and the velocities are estimated; the map is scaled and rotated into a
+  gravity-aligned world (yaw and position of the first keyframe from the ground truth
+  where it is known, only to draw both in the same frame), and every following window
+  carries IMU factors. A rejected alignment is retried at the next keyframe with the
+  latest keyframes; the snapshot says what was estimated and why it was rejected.
+- **Tracking** predicts each frame's pose by preintegrating the IMU from the last keyframe
+  (constant velocity before the initialization), then refines it against the local map.
+- **Keyframes** (VINS-Mono): the average rotation-compensated parallax of the tracked points
+  since the last keyframe reaches `keyframe_parallax_px`, or fewer than
+  `min_tracked_points` are tracked, or `max_keyframe_interval_s` passed (IMU factors
+  over long intervals are weak).
+- **Window.** The last `window` keyframes with pose, velocity and biases; IMU and bias
+  random-walk factors between them; when the window is full, the oldest keyframe and the
+  landmarks it anchors are marginalized into a prior (`backend.optim.marginalization`) that
+  the next windows carry. Under -w the prior keeps the planes of the marginalized features,
+  and they stay variables of the window.
+- **Plane instances** come from a monocular segmenter: the learned one by default, or on
+  rendered scenes the "oracle" (the renderer's exact ids, a clearly labelled reference).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import cv2
+import numpy as np
+
+from backend.data.motion import ImuData, ImuNoise
+from backend.frontend.lines import Segments, detect_segments, match_segments_temporal
+from backend.frontend.points import Keypoints, best_matches, detect_points, hamming_distances
+from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
+from backend.geometry import line as line_geo
+from backend.geometry import so3
+from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, PreparedImuFactor, imu_factor, predict_state, preintegrate, preintegration_params
+from backend.mapping.triangulation import triangulate_lines, triangulate_points
+from backend.optim import inertial
+from backend.optim.marginalization import marginalize, remap
+from backend.optim.problem import DistancePrior, ProblemData, parse_variant
+from backend.pipeline.engine import EndOfSequence, checkpoint_of
+from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
+from backend.pipeline.stereo_engine import (
+    POINT_NEW,
+    POINT_OUTLIER,
+    POINT_TRACKED,
+    POINT_UNUSED,
+    StereoEngine,
+    StereoSettings,
+    _KeyframeObs,
+    _Tracked,
+    _Window,
+)
+from backend.vio.alignment import Alignment, AlignmentSettings, align_visual_inertial
+
+
+@dataclasses.dataclass(frozen=True)
+class VioSettings(StereoSettings):
+    """The stereo settings that apply (tracking, culling, window, plane detection), plus the
+    VIO ones (module docstring): keyframes by `keyframe_parallax_px` (rotation-compensated,
+    average), `min_tracked_points`, fewer than `fallback_tracked_ratio` of the last keyframe's
+    tracked points, or `max_keyframe_interval_s`; new landmarks need
+    `epipolar_px` agreement and `min_parallax_deg` with one of the `triangulation_keyframes`
+    previous keyframes (newest first); the start needs `init_parallax_px`
+    and `init_min_matches`; initialization after `init_keyframes` keyframes spanning
+    `init_min_span_s` (`alignment`: its acceptance; the scale may be 20 % uncertain, the
+    windows with IMU factors refine it); the gauge prior's σ (`gauge_sigma_m`, `gauge_sigma_yaw_rad` for
+    position and yaw, `gauge_sigma_tilt_rad` for roll and pitch) and the initial bias σ
+    (`bias_sigma_accel`, `bias_sigma_gyro`) and velocity σ (`velocity_sigma`); the bias
+    drift (`rebias_accel`, `rebias_gyro`) beyond which a preintegration is redone."""
+
+    window: int = 10
+    fixed_horizon: int = 10  # before the initialization only; after it the prior replaces it
+    keyframe_parallax_px: float = 10.0
+    max_keyframe_interval_s: float = 0.3
+    epipolar_px: float = 2.0
+    min_parallax_deg: float = 1.0
+    init_parallax_px: float = 15.0
+    init_min_matches: int = 60
+    init_median_depth: float = 3.0
+    init_keyframes: int = 8
+    init_min_span_s: float = 1.0
+    gauge_sigma_m: float = 1e-3
+    gauge_sigma_yaw_rad: float = 1e-3
+    gauge_sigma_tilt_rad: float = 0.02
+    velocity_sigma: float = 0.2
+    bias_sigma_accel: float = 0.1
+    bias_sigma_gyro: float = 0.01
+    rebias_accel: float = 0.05
+    rebias_gyro: float = 0.003
+    max_lost_frames: int = 10
+    triangulation_keyframes: int = 8
+    alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2)
+
+
+def body_from_camera(source) -> np.ndarray:  # noqa: ANN001
+    """`T_body_camera` (4, 4) of the rectified left camera: EuRoC folders from their
+    rectification, rendered sequences from their rig."""
+    rect = getattr(source, "rectification", None)
+    return np.asarray(rect.T_body_rect0 if rect is not None else source.T_body_cam0, dtype=float)
+
+
+def imu_noise_of(source) -> ImuNoise:  # noqa: ANN001
+    """The IMU noise densities of the source (`imu0/sensor.yaml`, or the rendered settings)."""
+    calib = getattr(source, "imu_calibration", None)
+    if calib is not None and not callable(calib):
+        return calib.noise
+    return source.settings.imu_noise
+
+
+class VioEngine(StereoEngine):
+    """The VIO pipeline (module docstring; implements :class:`~backend.pipeline.engine.Engine`)."""
+
+    def __init__(self, source, *, settings: VioSettings = VioSettings(), name: str = "VIO sequence", segmenter: PlaneSegmenter | None = None, on_frame=None) -> None:  # noqa: ANN001
+        self.imu: ImuData = source.imu  # DatasetError (one line) without imu0
+        self.imu_noise = imu_noise_of(source)
+        self.T_body_camera = body_from_camera(source)
+        self.imu_params = preintegration_params(self.imu_noise)
+        if segmenter is None:
+            from backend.frontend.segmentation_learned import LearnedSegmenter
+
+            segmenter = LearnedSegmenter()
+        super().__init__(source, settings=settings, name=name, segmenter=segmenter, on_frame=on_frame)
+        self._check_imu_coverage()
+
+    # ------------------------------------------------------------------ Engine interface
+
+    def checkpoint(self) -> object:
+        return checkpoint_of(self, shared=("data_source", "settings", "_name", "segmenter", "camera", "on_frame", "_last", "imu", "imu_noise", "T_body_camera", "imu_params"))
+
+    def reset(self) -> None:
+        super().reset()
+        self._vel = []     # per keyframe (3,) m/s, world
+        self._bias = []    # per keyframe (6,) (b_a, b_g)
+        self._imu_factors: dict[int, PreparedImuFactor] = {}  # k -> preintegration from keyframe k to k + 1
+        self._prior: inertial.LinearPrior | None = None  # global keyframe and plane indices
+        self._initialized = False
+        self._init_status = "structure from motion: waiting for parallax"
+        self._init_report: dict = {}
+        self._init_keyframe = -1
+        self._kf_features: dict[int, tuple[Keypoints, np.ndarray]] = {}
+        self._kf_segments: dict[int, tuple[Segments, np.ndarray]] = {}
+        self._bootstrapping = True  # no map in the segment yet: frames are matched with its first keyframe
+        self._flow: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 0), np.uint8))
+        self._restart_flow = False
+        self._lost_run = 0
+        self._marginalized_before = 0
+
+    def step(self) -> Snapshot:
+        s = self.settings
+        t_start = time.perf_counter()
+        timing = {"point_dm": 0.0, "tracking": 0.0}
+        frames = lost = reinitializations = 0
+        messages = self._messages = []
+        n = len(self.data_source)
+        bootstrap = None
+        while True:
+            if self._next_frame >= n:
+                raise EndOfSequence(f"{self._name}: all {n} frames processed")
+            i = self._next_frame
+            self._next_frame += 1
+            t0 = time.perf_counter()
+            left, _ = self.data_source.rectified_pair(i)
+            timing["load"] = timing.get("load", 0.0) + 1e3 * (time.perf_counter() - t0)
+            frames += 1
+            if self.on_frame is not None:
+                self.on_frame(i)
+            t0 = time.perf_counter()
+            kp = detect_points(left, settings=s.points)
+            timing["point_dm"] += 1e3 * (time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            if self.keyframes == self._segment_start:
+                R, t = self._initial_pose(i)
+                tracked, reason = _Tracked(R, t, np.full(0, -1, np.int64), 0, True), "first frame"
+            elif self._bootstrapping:
+                bootstrap = self._bootstrap(i, kp, left)
+                if bootstrap is None:
+                    timing["tracking"] += 1e3 * (time.perf_counter() - t0)
+                    if not self._restart_flow:
+                        continue
+                    # Nothing left to follow from the first keyframe: this frame starts again.
+                    self._restart_flow = False
+                    self._start_segment()
+                    R, t = self._R_est[-1], self._t_est[-1]
+                    tracked, reason = _Tracked(R.copy(), t.copy(), np.full(0, -1, np.int64), 0, True), "first frame"
+                    break
+                tracked, reason = bootstrap[0], "initial pair"
+            else:
+                tracked = self._track(i, kp)
+                reason = self._keyframe_reason(i, kp, tracked)
+            timing["tracking"] += 1e3 * (time.perf_counter() - t0)
+            self._remember_frame(i, tracked.R, tracked.t)
+            if not tracked.ok:
+                lost += 1
+                self._lost_run += 1
+                if self._lost_run >= s.max_lost_frames:
+                    reinitializations += 1
+                    messages.append(f"tracking lost for {self._lost_run} frames at frame {i}: VIO starts again (new map segment)")
+                    self._start_segment()
+                    R, t = tracked.R, tracked.t
+                    tracked, reason = _Tracked(R, t, np.full(0, -1, np.int64), 0, True), "re-initialization"
+                    break
+                continue
+            self._lost_run = 0
+            if reason:
+                break
+            self._record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
+        return self._vio_keyframe(i, left, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, reason=reason, bootstrap=bootstrap)
+
+    # ------------------------------------------------------------------ start
+
+    def _start_segment(self) -> None:
+        """A new map segment from the next keyframe: structure from motion and
+        initialization again (the old map stays, frozen)."""
+        self._segment_start = self.keyframes
+        self._local_points = np.zeros(0, np.int64)
+        self._local_lines = np.zeros(0, np.int64)
+        self._initialized = False
+        self._prior = None
+        self._bootstrapping = True
+        self._lost_run = 0
+        self._init_status = "structure from motion: waiting for parallax (after a loss)"
+        self._marginalized_before = self.keyframes
+
+    def _bootstrap(self, i: int, kp: Keypoints, image: np.ndarray):  # noqa: ANN202
+        """Frame i against the segment's first keyframe, whose keypoints are followed frame to
+        frame by pyramidal Lucas-Kanade flow (forward-backward checked): when the median
+        rotation-compensated parallax reaches `init_parallax_px`, the relative pose from the
+        essential matrix and the first points. Returns (tracked, kf-0 keypoint indices, the
+        keypoint indices in frame i, p_world) or None."""
+        s = self.settings
+        cam = self.camera
+        k0 = self._segment_start
+        ids, uv_prev, image_prev = self._flow
+        if len(ids) >= 8:
+            lk = dict(winSize=(21, 21), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+            p0 = uv_prev.astype(np.float32).reshape(-1, 1, 2)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, None, **lk)
+            back, st_b, _ = cv2.calcOpticalFlowPyrLK(image, image_prev, p1, None, **lk)
+            ok = (st.ravel() == 1) & (st_b.ravel() == 1) & (np.linalg.norm((back - p0).reshape(-1, 2), axis=1) < 0.5)
+            uv = p1.reshape(-1, 2)
+            ok &= cam.in_image(uv)
+            ids, uv_prev = ids[ok], uv[ok].astype(float)
+        self._flow = (ids, uv_prev, image)
+        if len(ids) < s.init_min_matches:
+            if len(ids) < 8:
+                self._messages.append(f"frame {i}: too few features followed from the first keyframe; starting again from this frame")
+                self._restart_flow = True
+            return None
+        kp0 = self._kf_features[k0][0]
+        uv0, uv1 = kp0.uv[ids], uv_prev
+        R_01_imu = self._gyro_rotation(int(self._stamp[k0]), int(self.data_source.timestamps_ns[i]))
+        x0 = cam.normalize(uv0) @ R_01_imu  # the first view's rays rotated into frame i
+        with np.errstate(divide="ignore", invalid="ignore"):
+            parallax = np.linalg.norm(cam.project(x0) - uv1, axis=1)
+        if not np.nanmedian(parallax) >= s.init_parallax_px:
+            return None
+        E, inl = cv2.findEssentialMat(uv0, uv1, cam.K, method=cv2.RANSAC, prob=0.999, threshold=1.0)
+        if E is None or E.shape != (3, 3):
+            return None
+        _, R_10, t_10, inl = cv2.recoverPose(E, uv0, uv1, cam.K, mask=inl)
+        inl = inl.ravel() > 0
+        if inl.sum() < s.init_min_matches // 2:
+            return None
+        R_w0, t_w0 = self._R_est[k0], self._t_est[k0]
+        R_01 = R_10.T  # camera 1 in camera 0
+        t_01 = -R_10.T @ t_10.ravel()
+        Rs = np.stack([R_w0, R_w0 @ R_01])
+        ts = np.stack([t_w0, t_w0 + R_w0 @ t_01])
+        sel = np.flatnonzero(inl)
+        pts = triangulate_points([np.stack([cam.normalize(uv0[j])[:2], cam.normalize(uv1[j])[:2]]) for j in sel], [np.array([0, 1])] * len(sel), Rs, ts)
+        z0 = (pts - ts[0]) @ Rs[0]
+        z1 = (pts - ts[1]) @ Rs[1]
+        good = np.all(np.isfinite(pts), axis=1) & (z0[:, 2] > 0) & (z1[:, 2] > 0)
+        if good.sum() < s.init_min_matches // 2:
+            return None
+        scale = s.init_median_depth / float(np.median(z0[good, 2]))
+        t1 = t_w0 + scale * (R_w0 @ t_01)
+        pts = ts[0] + scale * (pts - ts[0])
+        sel = sel[good]
+        # The followed features become keypoints of frame i (ORB descriptors at their pixels).
+        nearest = self._nearest_keypoints(kp, uv1[sel])
+        keep = nearest >= 0
+        tracked = _Tracked(Rs[1], t1, np.zeros(0, np.int64), int(keep.sum()), True)
+        return tracked, ids[sel][keep], nearest[keep], pts[good][keep]
+
+    @staticmethod
+    def _nearest_keypoints(kp: Keypoints, uv: np.ndarray, *, radius_px: float = 2.0) -> np.ndarray:
+        """Index of the keypoint within `radius_px` of each pixel (-1: none), one-to-one."""
+        if len(kp.uv) == 0 or len(uv) == 0:
+            return np.full(len(uv), -1, np.int64)
+        d = np.linalg.norm(uv[:, None, :] - kp.uv[None, :, :], axis=2)
+        rows, cols = np.nonzero(d <= radius_px)
+        return best_matches(rows, cols, d[rows, cols], n_rows=len(uv), max_distance=radius_px, ratio=1.01)
+
+    def _gyro_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray:
+        """Camera rotation `R_cam0_cam1` from the gyroscope between two times (the current
+        gyro bias estimate; zero before the initialization)."""
+        bias = self._bias[-1] if self._bias else np.zeros(6)
+        pim = preintegrate(self.imu, t0_ns, t1_ns, bias_accel=bias[:3], bias_gyro=bias[3:], params=self.imu_params)
+        R_bc = self.T_body_camera[:3, :3]
+        return R_bc.T @ np.array(pim.deltaRij().matrix()) @ R_bc
+
+    # ------------------------------------------------------------------ tracking
+
+    def _predict(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """After the initialization: the IMU preintegrated from the last keyframe's state;
+        before it: constant velocity (the stereo pipeline's model)."""
+        if not self._initialized:
+            return super()._predict(i)
+        k = self.keyframes - 1
+        R, t, _ = self._imu_predict(k, int(self.data_source.timestamps_ns[i]))
+        return R, t
+
+    def _imu_predict(self, k: int, t_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Camera pose and body velocity at `t_ns` from keyframe k's state and the IMU."""
+        R_bc, t_bc = self.T_body_camera[:3, :3], self.T_body_camera[:3, 3]
+        R_wb, t_wb, _ = inertial.body_poses(self._R_est[k][None], self._t_est[k][None], self.T_body_camera)
+        bias = self._bias[k]
+        pim = preintegrate(self.imu, int(self._stamp[k]), int(t_ns), bias_accel=bias[:3], bias_gyro=bias[3:], params=self.imu_params)
+        R_wb1, t_wb1, v1 = predict_state(pim, R_wb[0], t_wb[0], self._vel[k], bias=bias)
+        return R_wb1 @ R_bc, t_wb1 + R_wb1 @ t_bc, v1
+
+    def _keyframe_reason(self, i: int, kp: Keypoints, tracked: _Tracked) -> str:
+        s = self.settings
+        if not tracked.ok:
+            return ""
+        k = self.keyframes - 1
+        if (int(self.data_source.timestamps_ns[i]) - int(self._stamp[k])) * 1e-9 >= s.max_keyframe_interval_s:
+            return "IMU interval"
+        if tracked.inliers < s.min_tracked_points:
+            return "few tracked"
+        if tracked.inliers < s.fallback_tracked_ratio * self._last_kf_tracked:
+            return "fallback"
+        # Rotation-compensated parallax of the tracked points against the last keyframe.
+        o = self._obs[k]
+        ids = self._local_points[tracked.match >= 0]
+        uv_now = kp.uv[tracked.match[tracked.match >= 0]]
+        pos = {int(p): j for j, p in enumerate(o.point_id)}
+        pairs = [(pos[int(p)], j) for j, p in enumerate(ids) if int(p) in pos]
+        if not pairs:
+            return "few tracked"
+        a, b = np.array(pairs).T
+        R_rel = tracked.R.T @ self._R_est[k]  # keyframe camera -> frame camera
+        x = self.camera.normalize(o.point_uv[a]) @ R_rel.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            parallax = np.linalg.norm(self.camera.project(x) - uv_now[b], axis=1)
+        if float(np.nanmean(parallax)) >= s.keyframe_parallax_px:
+            return "parallax"
+        return ""
+
+    # ------------------------------------------------------------------ keyframes
+
+    def _vio_keyframe(self, i: int, left: np.ndarray, kp: Keypoints, tracked: _Tracked, timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, reason: str, bootstrap) -> Snapshot:  # noqa: ANN001
+        s = self.settings
+        with_lines, mode = parse_variant(self._variant)
+        use_lines = with_lines or not s.skip_unused_stages
+        use_planes = mode != "wo" or not s.skip_unused_stages
+        k = self.keyframes
+        rng = np.random.default_rng([s.seed, k, 0x57E])
+        frames_per = max(frames, 1)
+        for stage in ("point_dm", "tracking", "load"):
+            timing[stage] = timing.get(stage, 0.0) / frames_per
+
+        local_p = self._local_points
+        p_match = tracked.match if len(tracked.match) == len(local_p) else np.full(len(local_p), -1, np.int64)
+        segments: Segments | None = None
+        l_match = np.zeros(0, np.int64)
+        local_l = self._local_lines
+        timing["line_dm"] = 0.0
+        if use_lines:
+            t0 = time.perf_counter()
+            segments = detect_segments(left, settings=s.lines)
+            l_match = self._match_lines(tracked.R, tracked.t, local_l, segments) if len(local_l) else np.full(0, -1, np.int64)
+            timing["line_dm"] = 1e3 * (time.perf_counter() - t0)
+
+        t0 = time.perf_counter()
+        status = np.full(len(kp.uv), POINT_UNUSED, np.uint8)
+        if len(tracked.match) == len(local_p):
+            status[tracked.match[tracked.match >= 0]] = POINT_OUTLIER
+        self._add_keyframe(i, tracked.R, tracked.t)
+        self._add_inertial_state(k)
+        if k == self._segment_start:  # the start follows this keyframe's features frame to frame
+            self._flow = (np.arange(len(kp.uv)), kp.uv.copy(), left)
+        obs, new_points, new_lines = self._observe_mono(k, kp, local_p, p_match, segments, local_l, l_match, bootstrap)
+        status[p_match[p_match >= 0]] = POINT_TRACKED
+        status[self._new_point_kp] = POINT_NEW
+        self._last_kf_tracked = len(obs.point_id)
+        timing["mapping"] = 1e3 * (time.perf_counter() - t0)
+
+        masks: PlaneMasks | None = None
+        detection = Detection((), (), (), (), ())
+        p_ids = obs.point_id[self._points.ok[obs.point_id]]
+        l_ids = obs.line_id[self._lines.ok[obs.line_id]]
+        self._det_state = (p_ids, np.zeros(len(p_ids), np.uint8), l_ids, np.zeros(len(l_ids), np.uint8))
+        timing["plane_seg"] = timing["plane_fit"] = 0.0
+        if use_planes and k > self._segment_start:
+            t0 = time.perf_counter()
+            masks = self._segment(i, left)
+            timing["plane_seg"] = 1e3 * (time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            detection = self._detect_planes(obs, masks, new_points, new_lines, rng)
+            timing["plane_fit"] = 1e3 * (time.perf_counter() - t0)
+
+        report, hessian = self._optimize(k, timing)
+        t0 = time.perf_counter()
+        self._cull(k)
+        self._update_local_map(k)
+        timing["culling"] = 1e3 * (time.perf_counter() - t0)
+        if not self._initialized:
+            self._try_initialize(k)
+        if self._frame_poses:
+            self._frame_poses[-1] = (i, self._R_est[k].copy(), self._t_est[k].copy())
+
+        image = None
+        if s.image_scale is not None:
+            t0 = time.perf_counter()
+            self._line_seg_index = np.arange(len(obs.line_id))
+            image = self._draw(left, kp, status, segments if use_lines else None, obs, masks, detection)
+            timing["image"] = 1e3 * (time.perf_counter() - t0)
+        total = 1e3 * (time.perf_counter() - t_start) - timing["load"] * frames_per
+        timing["total"] = total
+        timing["total_per_frame"] = total / frames_per
+        tracking = Tracking(frames=frames, lost_frames=lost, reinitializations=reinitializations, tracked_points=int(np.count_nonzero(p_match >= 0)), tracked_lines=int(np.count_nonzero(l_match >= 0)), keyframe_reason=reason)
+        self._last = self._snapshot(k, detection, self._det_state, report, hessian, image=image, tracking=tracking, message="; ".join(self._messages))
+        return self._last
+
+    def _segment(self, i: int, left: np.ndarray) -> PlaneMasks:
+        frame = getattr(self.segmenter, "segment_frame", None)
+        if frame is not None:
+            return frame(i)
+        return self.segmenter.segment(left, left, self.camera)
+
+    def _add_inertial_state(self, k: int) -> None:
+        """Velocity and biases of the new keyframe (IMU prediction after the initialization)
+        and the preintegration from the previous keyframe."""
+        if k == self._segment_start or not self._initialized:
+            self._vel.append(np.zeros(3))
+            self._bias.append(self._bias[-1].copy() if self._bias else np.zeros(6))
+        else:
+            _, _, v = self._imu_predict(k - 1, int(self._stamp[k]))
+            self._vel.append(v)
+            self._bias.append(self._bias[k - 1].copy())
+        if k > self._segment_start:
+            self._imu_factors[k - 1] = self._preintegrate(k - 1)
+
+    def _preintegrate(self, k: int) -> PreparedImuFactor:
+        b = self._bias[k]
+        return imu_factor(preintegrate(self.imu, int(self._stamp[k]), int(self._stamp[k + 1]), bias_accel=b[:3], bias_gyro=b[3:], params=self.imu_params))
+
+    def _observe_mono(self, k: int, kp: Keypoints, local_p: np.ndarray, p_match: np.ndarray, segments: Segments | None, local_l: np.ndarray, l_match: np.ndarray, bootstrap) -> tuple[_KeyframeObs, np.ndarray, np.ndarray]:  # noqa: ANN001
+        """Keyframe k's observations of map landmarks, and new landmarks triangulated with
+        the previous keyframe (or the initial pair's points)."""
+        P, Lm = self._points, self._lines
+        mp = np.flatnonzero(p_match >= 0)
+        j = p_match[mp]
+        tracked_ids = local_p[mp]
+        P.desc[tracked_ids] = kp.descriptors[j]
+        P.n_kf[tracked_ids] = P.n_kf[tracked_ids] + 1
+        claimed = np.zeros(len(kp.uv), bool)
+        claimed[j] = True
+        new_points = np.zeros(0, np.int64)
+        fresh = np.zeros(0, np.int64)
+        if bootstrap is not None:
+            self._bootstrapping = False
+            _, idx0, idx1, p_w = bootstrap
+            new_points, fresh = self._add_points(k - 1, self._kf_features[k - 1][0], idx0, kp, idx1, p_w)
+        elif k > self._segment_start:
+            # With the previous keyframes, newest first: a feature too close to its match in
+            # k - 1 (parallax) may be far enough from it in an older one.
+            found_ids, found_kp = [], []
+            for older in range(k - 1, max(self._segment_start, k - 1 - self.settings.triangulation_keyframes) - 1, -1):
+                if older not in self._kf_features:
+                    break
+                kp_prev, claimed_prev = self._kf_features[older]
+                idx0, idx1, p_w = self._triangulate_new_points(older, k, kp_prev, np.flatnonzero(~claimed_prev), kp, np.flatnonzero(~claimed))
+                ids, fr = self._add_points(older, kp_prev, idx0, kp, idx1, p_w)
+                claimed[fr] = True
+                found_ids.append(ids)
+                found_kp.append(fr)
+            if found_ids:
+                new_points, fresh = np.concatenate(found_ids), np.concatenate(found_kp)
+        claimed[fresh] = True
+        self._new_point_kp = fresh
+        point_id = np.concatenate([tracked_ids, new_points])
+        point_kp = np.concatenate([j, fresh])
+        self._kf_features[k] = (kp, claimed)
+        self._kf_features.pop(k - 1 - self.settings.triangulation_keyframes, None)
+        line_id = np.zeros(0, np.int64)
+        line_uv = np.zeros((0, 4))
+        new_lines = np.zeros(0, np.int64)
+        if segments is not None:
+            uv = np.concatenate([segments.start, segments.end], axis=1)
+            ml = np.flatnonzero(l_match >= 0)
+            jl = l_match[ml]
+            tracked_l = local_l[ml]
+            Lm.desc[tracked_l] = segments.descriptors[jl]
+            Lm.n_kf[tracked_l] = Lm.n_kf[tracked_l] + 1
+            claimed_l = np.zeros(len(segments), bool)
+            claimed_l[jl] = True
+            fresh_l = np.zeros(0, np.int64)
+            if k - 1 in self._kf_segments and k > self._segment_start:
+                prev, claimed_prev_l = self._kf_segments[k - 1]
+                new_lines, fresh_l = self._new_lines(k, prev, claimed_prev_l, segments, claimed_l)
+            claimed_l[fresh_l] = True
+            self._kf_segments[k] = (segments, claimed_l)
+            self._kf_segments.pop(k - 2, None)
+            line_id = np.concatenate([tracked_l, new_lines])
+            line_uv = uv[np.concatenate([jl, fresh_l])]
+        obs = _KeyframeObs(point_id, kp.uv[point_kp], np.full(len(point_id), np.nan), line_id, line_uv, np.full((len(line_id), 4), np.nan))
+        self._obs[k] = obs
+        return obs, new_points, new_lines
+
+    def _triangulate_new_points(self, j: int, k: int, kp0: Keypoints, cand0: np.ndarray, kp1: Keypoints, cand1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unclaimed keypoints of keyframes j < k matched by descriptor along the epipolar
+        lines of their relative pose, triangulated; returns keypoint indices in both and the
+        world points of those with parallax and positive depth."""
+        s = self.settings
+        cam = self.camera
+        empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
+        if len(cand0) == 0 or len(cand1) == 0:
+            return empty
+        R0, t0, R1, t1 = self._R_est[j], self._t_est[j], self._R_est[k], self._t_est[k]
+        R_10 = R1.T @ R0
+        t_10 = R1.T @ (t0 - t1)
+        if np.linalg.norm(t_10) < 1e-6:
+            return empty
+        E = so3.hat(t_10) @ R_10
+        x0 = cam.normalize(kp0.uv[cand0])
+        x1 = cam.normalize(kp1.uv[cand1])
+        lines = x0 @ E.T  # epipolar lines in image 1 (normalized)
+        num = np.abs(lines @ x1.T)
+        den = np.linalg.norm(lines[:, :2], axis=1, keepdims=True)
+        epi_px = cam.fx * num / np.maximum(den, 1e-12)
+        dist = hamming_distances(kp0.descriptors[cand0], kp1.descriptors[cand1])
+        rows, cols = np.nonzero(epi_px < s.epipolar_px)
+        match = best_matches(rows, cols, dist[rows, cols], n_rows=len(cand0), max_distance=s.max_hamming, ratio=s.match_ratio)
+        a = np.flatnonzero(match >= 0)
+        if len(a) == 0:
+            return empty
+        i0, i1 = cand0[a], cand1[match[a]]
+        Rs, ts = np.stack([R0, R1]), np.stack([t0, t1])
+        p_w = triangulate_points([np.stack([x0[a[j], :2], x1[match[a[j]], :2]]) for j in range(len(a))], [np.array([0, 1])] * len(a), Rs, ts)
+        z0 = np.einsum("ij,nj->ni", R0.T, p_w - t0)[:, 2]
+        z1 = np.einsum("ij,nj->ni", R1.T, p_w - t1)[:, 2]
+        ray0 = p_w - t0
+        ray1 = p_w - t1
+        cos = np.sum(ray0 * ray1, axis=1) / np.maximum(np.linalg.norm(ray0, axis=1) * np.linalg.norm(ray1, axis=1), 1e-12)
+        with np.errstate(invalid="ignore"):
+            good = np.all(np.isfinite(p_w), axis=1) & (z0 > s.min_depth_m) & (z1 > s.min_depth_m) & (z0 < s.max_depth_m) & (cos < np.cos(np.radians(s.min_parallax_deg)))
+            err0 = np.linalg.norm(cam.project((p_w - t0) @ R0) - kp0.uv[i0], axis=1)
+            err1 = np.linalg.norm(cam.project((p_w - t1) @ R1) - kp1.uv[i1], axis=1)
+            good &= (err0 < s.outlier_px) & (err1 < s.outlier_px)
+        return i0[good], i1[good], p_w[good]
+
+    def _add_points(self, k0: int, kp0: Keypoints, idx0: np.ndarray, kp1: Keypoints, idx1: np.ndarray, p_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """New points anchored in keyframe k0 (observed there and in the new keyframe);
+        appends their observation to keyframe k0's record. Returns their ids and keypoint
+        indices in the new keyframe."""
+        P = self._points
+        if len(idx0) == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        ids = P.add(
+            p_world=p_world, ok=np.ones(len(idx0), bool), anchor=np.full(len(idx0), k0), anchor_uv=kp0.uv[idx0], anchor_ur=np.full(len(idx0), np.nan),
+            plane=np.full(len(idx0), -1), desc=kp1.descriptors[idx1], n_kf=np.full(len(idx0), 2, np.int64),
+        )
+        o = self._obs[k0]
+        self._obs[k0] = _KeyframeObs(np.concatenate([o.point_id, ids]), np.concatenate([o.point_uv, kp0.uv[idx0]]), np.concatenate([o.point_ur, np.full(len(ids), np.nan)]), o.line_id, o.line_uv, o.line_ruv)
+        kp_prev, claimed_prev = self._kf_features[k0]
+        claimed_prev[idx0] = True
+        return ids, idx1
+
+    def _new_lines(self, k: int, prev: Segments, claimed_prev: np.ndarray, cur: Segments, claimed_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Lines from LBD matches between the unclaimed segments of keyframes k-1 and k,
+        triangulated from the two back-projection planes (at least `min_parallax_deg`
+        apart), with both endpoints in front of both cameras."""
+        s = self.settings
+        cam = self.camera
+        Lm = self._lines
+        a = np.flatnonzero(~claimed_prev)
+        b = np.flatnonzero(~claimed_cur)
+        empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        if len(a) == 0 or len(b) == 0:
+            return empty
+        wide = dataclasses.replace(s.lines, max_shift_px=max(s.lines.max_shift_px, 120.0))
+        sub = lambda seg, idx: Segments(seg.start[idx], seg.end[idx], seg.descriptors[idx])  # noqa: E731
+        pairs = match_segments_temporal(sub(prev, a), sub(cur, b), settings=wide)
+        if len(pairs) == 0:
+            return empty
+        ia, ib = a[pairs[:, 0]], b[pairs[:, 1]]
+        n = len(ia)
+        xs = np.concatenate([cam.normalize(prev.start[ia]), cam.normalize(cur.start[ib])])
+        xe = np.concatenate([cam.normalize(prev.end[ia]), cam.normalize(cur.end[ib])])
+        landmark = np.concatenate([np.arange(n), np.arange(n)])
+        pose = np.concatenate([np.zeros(n, np.int64), np.ones(n, np.int64)])
+        Rs = np.stack([self._R_est[k - 1], self._R_est[k]])
+        ts = np.stack([self._t_est[k - 1], self._t_est[k]])
+        m, v, spread = triangulate_lines(xs, xe, landmark, pose, n, Rs, ts)
+        norm = np.linalg.norm(v, axis=1)
+        good = (spread > np.sin(np.radians(s.min_parallax_deg))) & (norm > 1e-12)
+        m = m / np.maximum(norm, 1e-12)[:, None]
+        v = v / np.maximum(norm, 1e-12)[:, None]
+        # Endpoints: the line's points nearest the anchor (k-1) endpoint rays, in front of both cameras.
+        from backend.optim import factors
+
+        ends = []
+        for x in (cam.normalize(prev.start[ia]), cam.normalize(prev.end[ia])):
+            w = x @ Rs[0].T
+            p, _, _ = factors.line_point_nearest_ray(m, v, np.tile(ts[0], (n, 1)), w)
+            ends.append(p)
+        with np.errstate(invalid="ignore"):
+            for R, t in zip(Rs, ts):
+                for p in ends:
+                    z = (p - t) @ R[:, 2]
+                    good &= np.isfinite(z) & (z > s.min_depth_m) & (z < s.max_depth_m)
+            good &= np.linalg.norm(ends[1] - ends[0], axis=1) > s.min_line_length_m
+        sel = np.flatnonzero(good)
+        if len(sel) == 0:
+            return empty
+        uv_prev = np.concatenate([prev.start[ia[sel]], prev.end[ia[sel]]], axis=1)
+        ids = Lm.add(
+            m=m[sel], v=v[sel], ok=np.ones(len(sel), bool), anchor=np.full(len(sel), k - 1), anchor_uv=uv_prev, anchor_ruv=np.full((len(sel), 4), np.nan),
+            plane=np.full(len(sel), -1), desc=cur.descriptors[ib[sel]], n_kf=np.full(len(sel), 2, np.int64),
+        )
+        o = self._obs[k - 1]
+        self._obs[k - 1] = _KeyframeObs(o.point_id, o.point_uv, o.point_ur, np.concatenate([o.line_id, ids]), np.concatenate([o.line_uv, uv_prev]), np.concatenate([o.line_ruv, np.full((len(ids), 4), np.nan)]))
+        claimed_prev[ia[sel]] = True
+        return ids, ib[sel]
+
+    # ------------------------------------------------------------------ initialization
+
+    def _try_initialize(self, k: int) -> None:
+        """Visual-inertial alignment over the segment's keyframes so far (module docstring)."""
+        s = self.settings
+        first = max(self._segment_start, k + 1 - 2 * s.window)
+        kfs = np.arange(first, k + 1)
+        n_kf = len(kfs)
+        span = (int(self._stamp[k]) - int(self._stamp[first])) * 1e-9
+        if n_kf < s.init_keyframes or span < s.init_min_span_s:
+            self._init_status = f"structure from motion: {n_kf} keyframes over {span:.1f} s (alignment after {s.init_keyframes} keyframes over {s.init_min_span_s:.1f} s)"
+            return
+        R_v, t_v = self._R_est[kfs], self._t_est[kfs]
+        R_c0 = np.einsum("ji,njk->nik", R_v[0], R_v)
+        p_c0 = np.einsum("ji,nj->ni", R_v[0], t_v - t_v[0])
+        result: Alignment = align_visual_inertial(self._stamp[kfs], R_c0, p_c0, self.imu, T_body_cam0=self.T_body_camera, noise=self.imu_noise, settings=s.alignment)
+        self._init_report = {"keyframes": n_kf, "span_s": span, **result.to_dict()}
+        if not result.success:
+            self._init_status = f"alignment rejected at keyframe {k} ({n_kf} keyframes, {span:.1f} s): {result.reason}; retrying"
+            self._messages.append(self._init_status)
+            return
+        self._apply_alignment(kfs, result)
+        self._initialized = True
+        self._init_keyframe = k
+        truth = self._init_truth(kfs, result)
+        self._init_report.update(truth)
+        self._init_status = f"initialized at keyframe {k} ({n_kf} keyframes, {span:.1f} s): scale {result.scale:.3f}, gyro bias {np.round(result.bias_gyro, 4).tolist()} rad/s"
+        self._messages.append(self._init_status)
+
+    def _apply_alignment(self, kfs: np.ndarray, result: Alignment) -> None:
+        """Scale and rotate the segment's map into the gravity-aligned world; velocities and
+        the gyro bias from the alignment; the gauge prior on the window's first keyframe."""
+        s = self.settings
+        k0 = int(kfs[0])
+        R_v0, t_v0 = self._R_est[k0].copy(), self._t_est[k0].copy()
+        R_w_c0 = result.R_world_c0
+        # Yaw and position of the first aligned keyframe from the ground truth where known
+        # (the gauge: unobservable, chosen so that estimate and truth are drawn together).
+        t_w_c0 = np.zeros(3)
+        i0 = int(self._kf_frame[k0])
+        if bool(self.data_source.ground_truth_valid[i0]):
+            T = self.data_source.T_world_rect0[i0]
+            R_gt = T[:3, :3]
+            M = R_gt @ (R_w_c0).T
+            yaw = np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1])
+            Rz = so3.exp(np.array([0.0, 0.0, yaw]))
+            R_w_c0 = Rz @ R_w_c0
+            t_w_c0 = T[:3, 3].copy()
+            vel_world = result.velocity_world @ Rz.T
+        else:
+            vel_world = result.velocity_world
+        scale = float(result.scale)
+
+        def to_world(p_v: np.ndarray) -> np.ndarray:
+            return scale * ((p_v - t_v0) @ R_v0) @ R_w_c0.T + t_w_c0
+
+        R_wv = R_w_c0 @ R_v0.T
+        seg = np.arange(self._segment_start, self.keyframes)
+        self._R_est[seg] = np.einsum("ij,njk->nik", R_wv, self._R_est[seg])
+        self._t_est[seg] = to_world(self._t_est[seg])
+        P, Lm = self._points, self._lines
+        pts = np.flatnonzero(P.anchor[:] >= self._segment_start)
+        P.p_world[pts] = to_world(P.p_world[pts])
+        lns = np.flatnonzero(Lm.anchor[:] >= self._segment_start)
+        if len(lns):
+            m_v, v_v = Lm.m[lns], Lm.v[lns]
+            p0 = np.cross(v_v, m_v)  # the line's point nearest the visual origin (|v| = 1)
+            a_w, b_w = to_world(p0), to_world(p0 + v_v)
+            m, v = line_geo.from_points(a_w, b_w)
+            norm = np.linalg.norm(v, axis=1, keepdims=True)
+            Lm.m[lns], Lm.v[lns] = m / norm, v / norm
+        used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[lns]]))
+        for q in used_planes[used_planes >= 0]:
+            n_v, d_v = self._planes.n[q], self._planes.d[q]
+            n_w = R_wv @ n_v
+            x_v = -d_v * n_v  # a point of the plane
+            self._planes.n[q], self._planes.d[q] = n_w, float(-n_w @ to_world(x_v[None])[0])
+        for j, kf in enumerate(kfs):
+            self._vel[kf] = vel_world[j].copy()
+            self._bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
+        for kf in range(self._segment_start, self.keyframes):
+            if kf not in set(kfs.tolist()):
+                self._bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
+        for kf in range(self._segment_start, self.keyframes - 1):
+            self._imu_factors[kf] = self._preintegrate(kf)
+        # Window: from here on the prior is the gauge; landmarks before the window are frozen.
+        w0 = max(self._segment_start, self.keyframes - s.window + 1)  # the next window's first keyframe
+        self._marginalized_before = w0
+        self._prior = self._gauge_prior(w0)
+
+    def _gauge_prior(self, k: int) -> inertial.LinearPrior:
+        """What the start knows about keyframe k: position and yaw (the gauge), roll and pitch
+        from the aligned gravity, velocity and biases (VioSettings' σ)."""
+        s = self.settings
+        R, t = self._R_est[k], self._t_est[k]
+        A = np.zeros((15, 15))
+        A[:3, :3] = np.diag([1 / s.gauge_sigma_tilt_rad, 1 / s.gauge_sigma_tilt_rad, 1 / s.gauge_sigma_yaw_rad]) @ R  # world-axis rotation errors
+        A[3:6, 3:6] = np.eye(3) / s.gauge_sigma_m
+        A[6:9, 6:9] = np.eye(3) / s.velocity_sigma
+        A[9:12, 9:12] = np.eye(3) / s.bias_sigma_accel
+        A[12:15, 12:15] = np.eye(3) / s.bias_sigma_gyro
+        return inertial.LinearPrior(
+            pose_index=np.array([k]), inertial_index=np.array([k]), plane_index=np.zeros(0, np.int64), R=R[None].copy(), t=t[None].copy(),
+            inertial=np.r_[self._vel[k], self._bias[k]][None], plane_n=np.zeros((0, 3)), plane_d=np.zeros(0), A=A, b=np.zeros(15),
+        )
+
+    def _init_truth(self, kfs: np.ndarray, result: Alignment) -> dict:
+        """The alignment against the truth where the source has it (rendered scenes)."""
+        out: dict = {}
+        src = self.data_source
+        if hasattr(src, "bias_gyro") and hasattr(src, "trajectory"):
+            stamps = self._stamp[kfs]
+            imu_t = src.imu.timestamp_ns
+            at = np.clip(np.searchsorted(imu_t, stamps), 0, len(imu_t) - 1)
+            b_true = np.mean(src.bias_gyro[at], axis=0)
+            out["bias_gyro_true"] = b_true.tolist()
+            out["bias_gyro_error_pct"] = float(100.0 * np.linalg.norm(result.bias_gyro - b_true) / max(np.linalg.norm(b_true), 1e-12))
+        i0 = int(self._kf_frame[kfs[0]])
+        if bool(src.ground_truth_valid[i0]):
+            R_gt_c0 = src.T_world_rect0[i0][:3, :3]
+            g_true_c0 = R_gt_c0.T @ np.array([0.0, 0.0, -9.81])
+            g = result.gravity_c0
+            out["gravity_error_deg"] = float(np.degrees(np.arccos(np.clip(g @ g_true_c0 / (np.linalg.norm(g) * 9.81), -1.0, 1.0))))
+            # Scale: the visual baseline against the true one over the aligned keyframes.
+            t_gt = src.T_world_rect0[self._kf_frame[kfs]][:, :3, 3]
+            d_true = np.linalg.norm(t_gt[-1] - t_gt[0])
+            d_est = np.linalg.norm(self._t_est[kfs[-1]] - self._t_est[kfs[0]])
+            out["scale_error_pct"] = float(100.0 * (d_est - d_true) / max(d_true, 1e-12))
+        return out
+
+    # ------------------------------------------------------------------ window (hooks of the stereo pipeline)
+
+    def _window_range(self, k: int) -> tuple[int, int]:
+        s = self.settings
+        w0 = max(self._segment_start, k - s.window + 1)
+        if self._initialized:
+            w0 = max(w0, self._marginalized_before)
+            return w0, w0
+        return w0, max(self._segment_start, w0 - s.fixed_horizon)
+
+    def _window_landmarks(self, pts: np.ndarray, lns: np.ndarray, w0: int) -> tuple[np.ndarray, np.ndarray]:
+        if not self._initialized:
+            return pts, lns
+        return pts[self._points.anchor[pts] >= w0], lns[self._lines.anchor[lns] >= w0]
+
+    def _window_planes(self, planes: np.ndarray) -> np.ndarray:
+        if self._initialized and self._prior is not None and len(self._prior.plane_index):
+            return np.union1d(planes, self._prior.plane_index)
+        return planes
+
+    def _fix_first_pose(self) -> bool:
+        return not self._initialized
+
+    def _problem_data(self, win: _Window) -> ProblemData:
+        data = win.data
+        kfs = win.kf
+        if not self._initialized:
+            # The monocular scale gauge before the IMU gives it: the distance of the segment's
+            # first two keyframes, where both are in the window.
+            k0 = self._segment_start
+            if k0 in kfs and k0 + 1 in kfs:
+                i, j = np.searchsorted(kfs, [k0, k0 + 1])
+                dist = float(np.linalg.norm(self._t_est[k0 + 1] - self._t_est[k0]))
+                data = dataclasses.replace(data, distance_prior=DistancePrior(np.array([i]), np.array([j]), np.array([dist]), 1e-4 * max(dist, 1e-6)))
+            return data
+        self._refresh_preintegrations(kfs)
+        n = len(kfs)
+        pose_map = np.full(self.keyframes, -1)
+        pose_map[kfs] = np.arange(n)
+        pairs = [(a, a + 1) for a in kfs[:-1] if a + 1 in set(kfs.tolist())]
+        imu_i = np.array([pose_map[a] for a, _ in pairs], np.int64)
+        imu_j = np.array([pose_map[b] for _, b in pairs], np.int64)
+        factors_ = tuple(self._imu_factors[a] for a, _ in pairs)
+        dt = np.array([(int(self._stamp[b]) - int(self._stamp[a])) * 1e-9 for a, b in pairs])
+        prior = None
+        if self._prior is not None:
+            plane_map = np.full(len(self._planes), -1)
+            plane_map[win.planes] = np.arange(len(win.planes))
+            prior = remap(self._prior, pose_map=pose_map, plane_map=plane_map)
+        ine = inertial.InertialData(
+            T_body_camera=self.T_body_camera, velocity=np.array([self._vel[k] for k in kfs]), bias=np.array([self._bias[k] for k in kfs]),
+            free=~data.fixed_poses, imu_i=imu_i, imu_j=imu_j, imu=factors_, dt_s=dt, noise=self.imu_noise, prior=prior,
+        )
+        return dataclasses.replace(data, inertial=ine)
+
+    def _refresh_preintegrations(self, kfs: np.ndarray) -> None:
+        """Re-preintegrate the intervals whose bias estimate moved beyond the first-order
+        correction's comfort (`rebias_accel`, `rebias_gyro`)."""
+        s = self.settings
+        for a in kfs[:-1]:
+            f = self._imu_factors.get(int(a))
+            if f is None:
+                continue
+            hat = np.asarray(f.pim.biasHatVector()).ravel()
+            d = self._bias[a] - hat
+            if np.max(np.abs(d[:3])) > s.rebias_accel or np.max(np.abs(d[3:])) > s.rebias_gyro:
+                self._imu_factors[int(a)] = self._preintegrate(int(a))
+
+    def _after_solve(self, win: _Window, problem, state) -> None:  # noqa: ANN001
+        if not self._initialized or state.velocity is None:
+            return
+        free = ~win.data.fixed_poses
+        for j, k in enumerate(win.kf):
+            if free[j]:
+                self._vel[k] = state.velocity[j].copy()
+                self._bias[k] = state.bias[j].copy()
+        # Slide: when the window is full, marginalize its oldest keyframe and its landmarks.
+        if len(win.kf) >= self.settings.window:
+            oldest = int(win.kf[0])
+            p_local = np.flatnonzero(self._points.anchor[win.points] == oldest)
+            l_local = np.flatnonzero(self._lines.anchor[win.lines] == oldest)
+            prior = marginalize(problem, state, poses=np.array([0]), points=p_local, lines=l_local)
+            self._prior = None if prior is None else dataclasses.replace(prior, pose_index=win.kf[prior.pose_index], inertial_index=win.kf[prior.inertial_index], plane_index=win.planes[prior.plane_index])
+            self._marginalized_before = oldest + 1
+
+    # ------------------------------------------------------------------ snapshots
+
+    def _snapshot(self, k: int, detection: Detection, det_state: tuple, report, hessian, *, image, tracking, message: str) -> Snapshot:  # noqa: ANN001
+        snap = super()._snapshot(k, detection, det_state, report, hessian, image=image, tracking=tracking, message=message)
+        return dataclasses.replace(snap, imu=self._imu_state(k))
+
+    def _imu_state(self, k: int) -> ImuState:
+        vel = np.array(self._vel[: k + 1]).reshape(-1, 3)
+        bias = np.array(self._bias[: k + 1]).reshape(-1, 6)
+        truth_v = truth_b = None
+        src = self.data_source
+        if hasattr(src, "trajectory") and hasattr(src, "bias_gyro"):
+            t = self._stamp[: k + 1] * 1e-9
+            truth_v = src.trajectory.velocity(t)
+            at = np.clip(np.searchsorted(src.imu.timestamp_ns, self._stamp[: k + 1]), 0, len(src.imu.timestamp_ns) - 1)
+            truth_b = np.concatenate([src.bias_accel[at], src.bias_gyro[at]], axis=1)
+        return ImuState(
+            initialized=self._initialized, status=self._init_status, init_keyframe=self._init_keyframe, report=dict(self._init_report),
+            velocity_world=frozen(vel), bias=frozen(bias), gravity_world=frozen(np.array([0.0, 0.0, -9.81]) if self._initialized else np.full(3, np.nan)),
+            velocity_true=None if truth_v is None else frozen(truth_v), bias_true=None if truth_b is None else frozen(truth_b),
+        )
+
+    def _check_imu_coverage(self) -> None:
+        """The IMU must cover the frames with no gap longer than a frame interval."""
+        from backend.data.errors import DatasetError
+
+        stamps = self.imu.timestamp_ns
+        frames = np.asarray(self.data_source.timestamps_ns, dtype=np.int64)
+        where = getattr(self.data_source, "root", None)
+        label = f"{where}/mav0/imu0/data.csv" if where is not None else "IMU"
+        if len(stamps) < 2 or stamps[0] > frames[0] or stamps[-1] + DEFAULT_MAX_GAP_NS < frames[-1]:
+            raise DatasetError(label, f"the IMU samples ({len(stamps)}) do not cover the camera frames")
+        period = np.min(np.diff(frames)) if len(frames) > 1 else 0
+        inside = (stamps >= frames[0]) & (stamps <= frames[-1])
+        gaps = np.diff(stamps[inside]) if inside.sum() > 1 else np.zeros(0)
+        if len(gaps) and period and gaps.max() > period:
+            j = int(np.argmax(gaps))
+            raise DatasetError(label, f"IMU gap of {gaps[j] * 1e-6:.1f} ms after {stamps[inside][j]} ns, longer than a frame interval ({period * 1e-6:.1f} ms)")
+
