@@ -4,6 +4,8 @@ the engine built from them.
 - `--scene room|corridor|boxes|FILE.json` (default `room`): a rendered scene, frames rendered
   on demand (`SyntheticSequence`), through the stereo pipeline (`StereoEngine`);
 - `--dataset DIR`: an EuRoC ASL folder through the stereo pipeline;
+- `--mode vio`: either of them through the monocular visual-inertial pipeline instead
+  (`VioEngine`: the left images and `imu0`);
 - `--scene mc-a|mc-b`: the paper's Monte-Carlo worlds (`SimEngine`: no images).
 
 Bad values raise UsageError (one line, exit code 2); dataset problems raise DatasetError,
@@ -73,8 +75,11 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
     p.add_argument("--mislabel", type=float, default=None,
                    help="mc-a / mc-b only: fraction of features with a wrong plane-instance label (default 0.1)")
     p.add_argument("--window", type=int, default=10, help="keyframes optimized per step (default 10)")
-    p.add_argument("--segmenter", choices=("geometric", "learned"), default=None,
-                   help="stereo pipeline: plane instances from stereo disparity (geometric, default) or from the shipped network (learned, assets/planeseg.onnx)")
+    p.add_argument("--mode", choices=("stereo", "vio"), default="stereo",
+                   help="stereo SLAM (default) or monocular visual-inertial odometry (VIO: the left images and the IMU)")
+    p.add_argument("--segmenter", choices=("geometric", "learned", "oracle"), default=None,
+                   help="plane instances from stereo disparity (geometric, the stereo default), from the shipped network (learned, "
+                        "assets/planeseg.onnx, the VIO default), or on rendered scenes the renderer's exact plane ids (oracle: a reference, not a segmenter)")
     p.add_argument("--segmenter-model", default=None, metavar="FILE.onnx", help="with --segmenter learned: another model file (its .json contract beside it)")
     p.set_defaults(duration_default=duration_default)
 
@@ -122,6 +127,8 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
         from backend.pipeline.sim_engine import SimEngine, SimSettings
 
         _refuse(args, f"the Monte-Carlo scene {scene} (no images)", ("--duration", "--frames", "--stride", "--speed", "--segmenter", "--segmenter-model"))
+        if getattr(args, "mode", "stereo") != "stereo":
+            raise UsageError(f"--mode {args.mode}: the Monte-Carlo scene {scene} has no images and no IMU")
         mislabel = 0.1 if args.mislabel is None else args.mislabel
         if not 0.0 <= mislabel <= 1.0:
             raise UsageError(f"--mislabel {args.mislabel}: must be a fraction in [0, 1]")
@@ -156,16 +163,28 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
         name = f"rendered scene {label} ({duration:g} s, seed {args.seed}{f', every {stride}th frame' if stride > 1 else ''}{f', {speed:g}× speed' if speed != 1.0 else ''})"
     if frames is not None:
         source = FirstFrames(source, frames)
+    if getattr(args, "mode", "stereo") == "vio":
+        return _vio_engine(source, name, args, headless=headless)
     return _stereo_engine(source, name, args, headless=headless)
 
 
-def build_segmenter(args: argparse.Namespace):  # noqa: ANN201
-    """The plane segmenter `--segmenter` names (UsageError: a model file that cannot be
-    used, one line)."""
+def build_segmenter(args: argparse.Namespace, source=None):  # noqa: ANN001, ANN201
+    """The plane segmenter `--segmenter` names (the stereo default: geometric; VIO's:
+    learned) for `source` (UsageError: a model file that cannot be used, or the oracle
+    without a rendered scene; one line)."""
     from app.cli import UsageError
 
-    kind = getattr(args, "segmenter", None) or "geometric"
+    default = "learned" if getattr(args, "mode", "stereo") == "vio" else "geometric"
+    kind = getattr(args, "segmenter", None) or default
     model = getattr(args, "segmenter_model", None)
+    if kind == "oracle":
+        if model is not None:
+            raise UsageError("--segmenter-model: only with --segmenter learned")
+        from backend.frontend.segmentation_oracle import OracleSegmenter
+
+        if source is None or not hasattr(source, "views"):
+            raise UsageError("--segmenter oracle: only with a rendered scene (it reads the renderer's plane ids)")
+        return OracleSegmenter(source)
     if kind == "geometric":
         if model is not None:
             raise UsageError("--segmenter-model: only with --segmenter learned")
@@ -188,7 +207,21 @@ def _stereo_engine(source, name: str, args: argparse.Namespace, *, headless: boo
         settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=True, image_scale=None, hessian=False)
     else:
         settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=False, hessian=True, image_scale=1.0)
-    segmenter = build_segmenter(args)
-    if getattr(args, "segmenter", None) == "learned":
-        name = f"{name}, learned segmenter"
+    segmenter = build_segmenter(args, source)
+    if getattr(args, "segmenter", None) in ("learned", "oracle"):
+        name = f"{name}, {args.segmenter} segmenter"
     return StereoEngine(source, settings=settings, name=name, segmenter=segmenter)
+
+
+def _vio_engine(source, name: str, args: argparse.Namespace, *, headless: bool):  # noqa: ANN001, ANN202
+    """The VIO pipeline on `source` (DatasetError, one line, without `imu0` or with IMU gaps
+    longer than a frame interval)."""
+    from backend.pipeline.vio_engine import VioEngine, VioSettings
+
+    if headless:
+        settings = VioSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=True, image_scale=None, hessian=False)
+    else:
+        settings = VioSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=False, hessian=True, image_scale=1.0)
+    segmenter = build_segmenter(args, source)
+    kind = getattr(args, "segmenter", None) or "learned"
+    return VioEngine(source, settings=settings, name=f"{name}, VIO, {kind} segmenter", segmenter=segmenter)

@@ -41,12 +41,14 @@ def run_one(source: list[str], variant: str, *, keep: tuple[str, ...] = ()) -> d
     return metrics
 
 
-def publish(results: dict, body: str, *, json_name: str, block: str, readme: bool) -> int:
-    """Write `results` to docs/pipeline/JSON_NAME, put the table `body` between README.md's
-    `<!-- BLOCK:start -->` and `<!-- BLOCK:end -->` (if `readme`) and print it; returns 0."""
-    out = ROOT / "docs" / "pipeline" / json_name
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(results, indent=2) + "\n")
+def publish(results: dict | None, body: str, *, json_name: str, block: str, readme: bool) -> int:
+    """Write `results` to docs/pipeline/JSON_NAME (unless None), put the table `body`
+    between README.md's `<!-- BLOCK:start -->` and `<!-- BLOCK:end -->` (if `readme`) and
+    print it; returns 0."""
+    if results is not None:
+        out = ROOT / "docs" / "pipeline" / json_name
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(results, indent=2) + "\n")
     if readme:
         path = ROOT / "README.md"
         text = path.read_text()

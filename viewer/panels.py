@@ -50,8 +50,40 @@ def report_markdown(s: Snapshot) -> str:
         f"cost {r.initial_cost:.4g} → {r.final_cost:.4g}\n\n"
         f"**trajectory error**: RMSE {s.metrics.rmse_cm:.2f} cm · ATE (SE3) {s.metrics.ate_cm:.2f} cm\n\n"
         f"**map**: {images.plural(len(s.points), 'point')} · {images.plural(len(s.lines), 'line')} · {images.plural(len(s.planes), 'plane')}\n\n"
+        f"{imu_markdown(s)}"
         f"**co-planar detection** (θ_cp = 80 %)\n\n{detection}\n\n"
         f"**time**\n\n{timing_table(r.timing_ms)}"
+    )
+
+
+def imu_markdown(s: Snapshot) -> str:
+    """VIO's inertial state at the snapshot's keyframe (empty for the other engines): the
+    initialization's status and figures, velocity, biases and gravity, with the truth where
+    the input has it."""
+    imu = s.imu
+    if imu is None:
+        return ""
+    v = imu.velocity_world[-1]
+    b = imu.bias[-1]
+
+    def vec(x: np.ndarray, digits: int = 3) -> str:
+        return "(" + ", ".join(_num(float(c), digits) for c in x) + ")"
+
+    rows = [f"| velocity (m/s, world) | {vec(v)} | {vec(imu.velocity_true[-1]) if imu.velocity_true is not None else '–'} |",
+            f"| accelerometer bias (m/s²) | {vec(b[:3], 4)} | {vec(imu.bias_true[-1][:3], 4) if imu.bias_true is not None else '–'} |",
+            f"| gyroscope bias (rad/s) | {vec(b[3:], 5)} | {vec(imu.bias_true[-1][3:], 5) if imu.bias_true is not None else '–'} |",
+            f"| gravity (m/s², world) | {vec(imu.gravity_world, 2)} | (0, 0, -9.81) |"]
+    init = ""
+    rep = imu.report
+    if imu.initialized:
+        figures = [f"scale {_num(rep.get('scale', float('nan')), 3)}"]
+        for key, label, unit in (("gravity_error_deg", "gravity error", "°"), ("scale_error_pct", "scale error", " %"), ("bias_gyro_error_pct", "gyro bias error", " %")):
+            if key in rep:
+                figures.append(f"{label} {_num(rep[key], 2)}{unit}")
+        init = f"initialized at keyframe {imu.init_keyframe}: " + ", ".join(figures) + " (against the truth where known)\n\n"
+    return (
+        f"**IMU** ({'initialized' if imu.initialized else 'not initialized'}): {imu.status}\n\n{init}"
+        f"| | estimate | truth |\n|---|---|---|\n" + "\n".join(rows) + "\n\n"
     )
 
 

@@ -50,9 +50,14 @@ def plots_png(snapshots: list[Snapshot], *, current: int | None) -> bytes:
     matplotlib.use("Agg", force=False)
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(WIDTH_PX / DPI, HEIGHT_PX / DPI), dpi=DPI)
+    inertial = any(s.imu is not None for s in snapshots)
+    height = HEIGHT_PX + (150 if inertial else 0)
+    fig = Figure(figsize=(WIDTH_PX / DPI, height / DPI), dpi=DPI)
     fig.subplots_adjust(left=0.12, right=0.88, top=0.96, bottom=0.06, hspace=0.12)
-    axes = fig.subplots(5, 1, sharex=True, height_ratios=[3, 3, 3, 3, 1.4])
+    ratios = [3, 3, 3, 3, 3, 1.4] if inertial else [3, 3, 3, 3, 1.4]
+    axes = list(fig.subplots(len(ratios), 1, sharex=True, height_ratios=ratios))
+    if inertial:  # the IMU panel goes above the events strip
+        axes = axes[:4] + [axes[5], axes[4]]
     d = _series(snapshots)
     x = d["keyframe"]
     style = dict(marker=".", markersize=3, linewidth=1.2)
@@ -104,7 +109,21 @@ def plots_png(snapshots: list[Snapshot], *, current: int | None) -> bytes:
         ax.grid(True, linewidth=0.3)
         ax.tick_params(labelsize=7)
         ax.yaxis.label.set_size(8)
-    for i, ax in enumerate(axes[:4]):
+    if inertial:
+        ax = axes[5]
+        with_imu = [s for s in snapshots if s.imu is not None]
+        xs = np.array([s.keyframe for s in with_imu], dtype=float)
+        speed = np.array([np.linalg.norm(s.imu.velocity_world[-1]) if s.imu.initialized else np.nan for s in with_imu])
+        ax.plot(xs, speed, label="speed", **style)
+        if all(s.imu.velocity_true is not None for s in with_imu):
+            ax.plot(xs, [np.linalg.norm(s.imu.velocity_true[-1]) for s in with_imu], label="true speed", linestyle="--", linewidth=1.0)
+        ax.set_ylabel("speed (m/s)")
+        twin = twins[5] = ax.twinx()
+        bg = np.array([1e3 * np.linalg.norm(s.imu.bias[-1][3:]) for s in with_imu])
+        twin.plot(xs, bg, color="tab:green", linewidth=1.0, label="|gyro bias| (mrad/s)")
+        twin.set_ylabel("gyro bias (mrad/s)", color="tab:green")
+    for i, ax in enumerate(axes[:4] + axes[5:]):
+        i = i if i < 4 else 5
         handles, labels = ax.get_legend_handles_labels()
         if i in twins:
             h2, l2 = twins[i].get_legend_handles_labels()

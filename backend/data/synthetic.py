@@ -40,7 +40,10 @@ class SequenceSettings:
     trajectory, IMU noise and image effects are drawn from `seed`; `speed` traverses the same
     path that many times faster (every channel's frequencies scaled). Image effects: Gaussian
     noise of `image_noise` grey levels, blur of `blur_px` pixels, and an exposure gain
-    varying by ±`exposure` (relative) with a 7 s period."""
+    varying by ±`exposure` (relative) with a 7 s period. The IMU biases start at
+    `imu_bias_gyro` (rad/s) and `imu_bias_accel` (m/s²), by default about those of the real
+    EuRoC V1_01 sensor (its ground truth's estimate at the start), and then random-walk at
+    `imu_noise`'s densities."""
 
     duration_s: float = 30.0
     camera_rate_hz: float = 20.0
@@ -51,6 +54,8 @@ class SequenceSettings:
     blur_px: float = 0.0
     exposure: float = 0.0
     speed: float = 1.0
+    imu_bias_gyro: tuple[float, float, float] = (-0.002, 0.021, 0.077)
+    imu_bias_accel: tuple[float, float, float] = (-0.024, 0.121, 0.075)
 
     def __post_init__(self) -> None:
         if not self.duration_s > 0:
@@ -87,7 +92,9 @@ class SyntheticSequence:
         period_ns = int(round(1e9 / settings.camera_rate_hz))
         self.timestamps_ns = np.arange(0, int(settings.duration_s * 1e9) + 1, period_ns, dtype=np.int64)
         self.imu_true = imu_samples(self.trajectory, start_ns=0, end_ns=int(self.timestamps_ns[-1]), rate_hz=settings.imu_rate_hz)
-        self.imu, self.bias_gyro, self.bias_accel = add_imu_noise(self.imu_true, rng, noise=settings.imu_noise)
+        self.imu, self.bias_gyro, self.bias_accel = add_imu_noise(
+            self.imu_true, rng, noise=settings.imu_noise, bias_gyro=np.array(settings.imu_bias_gyro), bias_accel=np.array(settings.imu_bias_accel)
+        )
         t = self.timestamps_ns * 1e-9
         T = np.tile(np.eye(4), (len(t), 1, 1))
         T[:, :3, :3] = self.trajectory.rotation(t)

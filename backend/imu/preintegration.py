@@ -172,11 +172,9 @@ def imu_factor_error(
     docstring: order, chart, retraction). `bias_i` (6,) is `(accel, gyro)`; when it differs
     from the bias `pim` was integrated with, gtsam corrects the deltas to first order."""
     term = pim if isinstance(pim, PreparedImuFactor) else imu_factor(pim)
-    H_pose_i = np.empty((9, 6), order="F")
-    H_v_i = np.empty((9, 3), order="F")
-    H_pose_j = np.empty((9, 6), order="F")
-    H_v_j = np.empty((9, 3), order="F")
-    H_bias = np.empty((9, 6), order="F")
+    # One Fortran-ordered (9, 24) buffer; gtsam fills its column blocks in place:
+    # pose_i 0:6, v_i 6:9, pose_j 9:15, v_j 15:18, bias 18:24.
+    H = np.empty((9, 24), order="F")
     R_i = np.asarray(R_world_body_i, dtype=float)
     R_j = np.asarray(R_world_body_j, dtype=float)
     error = term.factor.evaluateError(
@@ -185,19 +183,20 @@ def imu_factor_error(
         gtsam.Pose3(gtsam.Rot3(R_j), np.asarray(t_world_body_j, dtype=float)),
         np.asarray(v_world_j, dtype=float),
         constant_bias(bias_i),
-        H_pose_i, H_v_i, H_pose_j, H_v_j, H_bias,
+        H[:, 0:6], H[:, 6:9], H[:, 9:15], H[:, 15:18], H[:, 18:24],
     )
-    S = term.sqrt_information
     # gtsam's body-frame translation columns to the project's world-frame δt: ∂r/∂δt = ∂r/∂u Rᵀ.
-    H_pose_i[:, 3:] = H_pose_i[:, 3:] @ R_i.T
-    H_pose_j[:, 3:] = H_pose_j[:, 3:] @ R_j.T
+    H[:, 3:6] = H[:, 3:6] @ R_i.T
+    H[:, 12:15] = H[:, 12:15] @ R_j.T
+    S = term.sqrt_information
+    J = S @ H
     return ImuResidual(
         residual=S @ np.asarray(error, dtype=float).reshape(9),
-        J_pose_i=S @ H_pose_i,
-        J_v_i=S @ H_v_i,
-        J_pose_j=S @ H_pose_j,
-        J_v_j=S @ H_v_j,
-        J_bias_i=S @ H_bias,
+        J_pose_i=J[:, 0:6],
+        J_v_i=J[:, 6:9],
+        J_pose_j=J[:, 9:15],
+        J_v_j=J[:, 15:18],
+        J_bias_i=J[:, 18:24],
     )
 
 

@@ -25,6 +25,26 @@ def triangulate_points(x_norm: list[np.ndarray], poses: list[np.ndarray], R: np.
     return out
 
 
+def triangulate_two_views(x0: np.ndarray, x1: np.ndarray, R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray) -> np.ndarray:
+    """World points (P, 3) from normalized observations x0, x1 (P, 2) in two poses
+    `T_world_camera` (R (3, 3), t (3,)): the DLT of :func:`triangulate_points`, vectorized
+    over the points (one batched SVD); NaN where the solution is at infinity."""
+    rows = []
+    for x, R, t in ((x0, R0, t0), (x1, R1, t1)):
+        P = np.concatenate([R.T, (-R.T @ t)[:, None]], axis=1)  # (3, 4)
+        rows += [x[:, 0:1] * P[2] - P[0], x[:, 1:2] * P[2] - P[1]]
+    A = np.stack(rows, axis=1)  # (P, 4, 4)
+    if len(A) == 0:
+        return np.zeros((0, 3))
+    _, _, Vt = np.linalg.svd(A)
+    X = Vt[:, -1]
+    w = X[:, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = X[:, :3] / w[:, None]
+    out[np.abs(w) <= 1e-12] = np.nan
+    return out
+
+
 def backprojection_planes(x_start: np.ndarray, x_end: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """World planes (M, 4) `(N, -N·t)` through each camera centre and its observed segment
     (normalized endpoints (M, 2)), N a unit normal; R, t the observing poses (M, ...)."""

@@ -137,32 +137,27 @@ def bias_walk_residuals(bias: np.ndarray, data: InertialData) -> tuple[np.ndarra
 def prior_residual(prior: LinearPrior, R: np.ndarray, t: np.ndarray, inertial: np.ndarray, plane_n: np.ndarray, plane_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The prior's whitened residual (r,) and Jacobian (r, D) at the current values of its
     variables (`R`, `t` of its poses, `inertial` (Q, 9), `plane_n`, `plane_d` of its planes).
-    The rotation's local coordinates `Log(R̄ᵀR)` are differentiated exactly (`J_r⁻¹`)."""
-    parts, jac = [], []
-    if len(prior.pose_index):
+    The rotation's local coordinates `Log(R̄ᵀR)` are differentiated exactly (`J_r⁻¹`), the
+    planes' through :func:`plane_local`."""
+    P, Q, K = len(prior.pose_index), len(prior.inertial_index), len(prior.plane_index)
+    A = prior.A
+    r = A.shape[0]
+    parts = []
+    J = A.copy()
+    if P:
         w = so3.log(np.einsum("nji,njk->nik", prior.R, R))
         parts.append(np.concatenate([w, t - prior.t], axis=1).ravel())
-        Jp = np.zeros((len(w), 6, 6))
-        Jp[:, :3, :3] = so3.right_jacobian_inv(w)
-        Jp[:, 3:, 3:] = np.eye(3)
-        jac.append(Jp)
-    if len(prior.inertial_index):
+        A_p = A[:, : 6 * P].reshape(r, P, 6)
+        J[:, : 6 * P].reshape(r, P, 6)[:, :, :3] = np.einsum("rpi,pij->rpj", A_p[:, :, :3], so3.right_jacobian_inv(w))
+    if Q:
         parts.append((inertial - prior.inertial).ravel())
-        jac.append(np.broadcast_to(np.eye(INERTIAL_DIM), (len(inertial), INERTIAL_DIM, INERTIAL_DIM)))
-    if len(prior.plane_index):
+    if K:
         local, J_plane = plane_local(prior.plane_n, prior.plane_d, plane_n, plane_d)
         parts.append(local.ravel())
-        jac.append(J_plane)
+        c = 6 * P + INERTIAL_DIM * Q
+        J[:, c:] = np.einsum("rki,kij->rkj", A[:, c:].reshape(r, K, 3), J_plane).reshape(r, 3 * K)
     dx = np.concatenate(parts) if parts else np.zeros(0)
-    D = len(dx)
-    J_local = np.zeros((D, D))
-    c = 0
-    for block in jac:
-        for b in block:
-            k = b.shape[0]
-            J_local[c : c + k, c : c + k] = b
-            c += k
-    return prior.A @ dx + prior.b, prior.A @ J_local
+    return A @ dx + prior.b, J
 
 
 def plane_local(n_ref: np.ndarray, d_ref: np.ndarray, n: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

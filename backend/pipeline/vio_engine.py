@@ -46,12 +46,12 @@ import numpy as np
 
 from backend.data.motion import ImuData, ImuNoise
 from backend.frontend.lines import Segments, detect_segments, match_segments_temporal
-from backend.frontend.points import Keypoints, best_matches, detect_points, hamming_distances
+from backend.frontend.points import Keypoints, best_matches, detect_points, pair_hamming
 from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
 from backend.geometry import line as line_geo
 from backend.geometry import so3
 from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, PreparedImuFactor, imu_factor, predict_state, preintegrate, preintegration_params
-from backend.mapping.triangulation import triangulate_lines, triangulate_points
+from backend.mapping.triangulation import triangulate_lines, triangulate_two_views
 from backend.optim import inertial
 from backend.optim.marginalization import marginalize, remap
 from backend.optim.problem import DistancePrior, ProblemData, parse_variant
@@ -285,7 +285,7 @@ class VioEngine(StereoEngine):
         Rs = np.stack([R_w0, R_w0 @ R_01])
         ts = np.stack([t_w0, t_w0 + R_w0 @ t_01])
         sel = np.flatnonzero(inl)
-        pts = triangulate_points([np.stack([cam.normalize(uv0[j])[:2], cam.normalize(uv1[j])[:2]]) for j in sel], [np.array([0, 1])] * len(sel), Rs, ts)
+        pts = triangulate_two_views(cam.normalize(uv0[sel])[:, :2], cam.normalize(uv1[sel])[:, :2], Rs[0], ts[0], Rs[1], ts[1])
         z0 = (pts - ts[0]) @ Rs[0]
         z1 = (pts - ts[1]) @ Rs[1]
         good = np.all(np.isfinite(pts), axis=1) & (z0[:, 2] > 0) & (z1[:, 2] > 0)
@@ -402,7 +402,7 @@ class VioEngine(StereoEngine):
         obs, new_points, new_lines = self._observe_mono(k, kp, local_p, p_match, segments, local_l, l_match, bootstrap)
         status[p_match[p_match >= 0]] = POINT_TRACKED
         status[self._new_point_kp] = POINT_NEW
-        self._last_kf_tracked = len(obs.point_id)
+        self._last_kf_tracked = int(np.count_nonzero(p_match >= 0)) if k > self._segment_start + 1 else len(obs.point_id)  # map points tracked (new ones are not yet)
         timing["mapping"] = 1e3 * (time.perf_counter() - t0)
 
         masks: PlaneMasks | None = None
@@ -548,16 +548,14 @@ class VioEngine(StereoEngine):
         lines = x0 @ E.T  # epipolar lines in image 1 (normalized)
         num = np.abs(lines @ x1.T)
         den = np.linalg.norm(lines[:, :2], axis=1, keepdims=True)
-        epi_px = cam.fx * num / np.maximum(den, 1e-12)
-        dist = hamming_distances(kp0.descriptors[cand0], kp1.descriptors[cand1])
-        rows, cols = np.nonzero(epi_px < s.epipolar_px)
-        match = best_matches(rows, cols, dist[rows, cols], n_rows=len(cand0), max_distance=s.max_hamming, ratio=s.match_ratio)
+        rows, cols = np.nonzero(num < (s.epipolar_px / cam.fx) * np.maximum(den, 1e-12))
+        dist = pair_hamming(kp0.descriptors[cand0[rows]], kp1.descriptors[cand1[cols]])
+        match = best_matches(rows, cols, dist, n_rows=len(cand0), max_distance=s.max_hamming, ratio=s.match_ratio)
         a = np.flatnonzero(match >= 0)
         if len(a) == 0:
             return empty
         i0, i1 = cand0[a], cand1[match[a]]
-        Rs, ts = np.stack([R0, R1]), np.stack([t0, t1])
-        p_w = triangulate_points([np.stack([x0[a[j], :2], x1[match[a[j]], :2]]) for j in range(len(a))], [np.array([0, 1])] * len(a), Rs, ts)
+        p_w = triangulate_two_views(x0[a, :2], x1[match[a], :2], R0, t0, R1, t1)
         z0 = np.einsum("ij,nj->ni", R0.T, p_w - t0)[:, 2]
         z1 = np.einsum("ij,nj->ni", R1.T, p_w - t1)[:, 2]
         ray0 = p_w - t0
@@ -760,6 +758,7 @@ class VioEngine(StereoEngine):
             at = np.clip(np.searchsorted(imu_t, stamps), 0, len(imu_t) - 1)
             b_true = np.mean(src.bias_gyro[at], axis=0)
             out["bias_gyro_true"] = b_true.tolist()
+            out["bias_gyro_error"] = float(np.linalg.norm(result.bias_gyro - b_true))
             out["bias_gyro_error_pct"] = float(100.0 * np.linalg.norm(result.bias_gyro - b_true) / max(np.linalg.norm(b_true), 1e-12))
         i0 = int(self._kf_frame[kfs[0]])
         if bool(src.ground_truth_valid[i0]):

@@ -16,12 +16,13 @@ from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, render_sequence
 
 QUIET = ImuNoise(0.0, 0.0, 0.0, 0.0)
+NO_BIAS = dict(imu_bias_gyro=(0.0, 0.0, 0.0), imu_bias_accel=(0.0, 0.0, 0.0))
 
 
 @pytest.fixture(scope="module")
 def room(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
     out = tmp_path_factory.mktemp("room") / "seq"
-    assert render_sequence(builtin_scene("room"), out, settings=SequenceSettings(duration_s=1.0, imu_noise=QUIET)) == 21
+    assert render_sequence(builtin_scene("room"), out, settings=SequenceSettings(duration_s=1.0, imu_noise=QUIET, **NO_BIAS)) == 21
     return out
 
 
@@ -78,12 +79,12 @@ def test_written_imu_reproduces_the_ground_truth(room: pathlib.Path) -> None:
 
 def test_same_seed_same_sequence(tmp_path: pathlib.Path, room: pathlib.Path) -> None:
     out = tmp_path / "again"
-    render_sequence(builtin_scene("room"), out, settings=SequenceSettings(duration_s=0.1, imu_noise=QUIET))
+    render_sequence(builtin_scene("room"), out, settings=SequenceSettings(duration_s=0.1, imu_noise=QUIET, **NO_BIAS))
     for k in (0, 2):
         name = sorted((out / "mav0" / "cam0" / "data").iterdir())[k].name
         assert (out / "mav0" / "cam0" / "data" / name).read_bytes() == (room / "mav0" / "cam0" / "data" / name).read_bytes()
     other = tmp_path / "other"
-    render_sequence(builtin_scene("room"), other, settings=SequenceSettings(duration_s=0.1, seed=1, imu_noise=QUIET))
+    render_sequence(builtin_scene("room"), other, settings=SequenceSettings(duration_s=0.1, seed=1, imu_noise=QUIET, **NO_BIAS))
     name = sorted((out / "mav0" / "cam0" / "data").iterdir())[2].name
     assert (other / "mav0" / "cam0" / "data" / name).read_bytes() != (out / "mav0" / "cam0" / "data" / name).read_bytes()
 
@@ -93,7 +94,7 @@ def test_on_demand_sequence_matches_the_written_folder(room: pathlib.Path) -> No
     reader reads from the rendered folder, frame for frame, in any order."""
     from backend.data.synthetic import SyntheticSequence
 
-    seq = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=1.0, imu_noise=QUIET), cache_frames=1)
+    seq = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=1.0, imu_noise=QUIET, **NO_BIAS), cache_frames=1)
     ds = EurocDataset(room)
     np.testing.assert_array_equal(seq.timestamps_ns, ds.timestamps_ns)
     np.testing.assert_allclose(seq.T_world_rect0[:-1], ds.T_world_rect0[:-1], atol=1e-9)

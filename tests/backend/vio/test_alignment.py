@@ -24,6 +24,7 @@ import pytest
 from backend.data.motion import GRAVITY_WORLD, ImuData, ImuNoise, add_imu_noise, imu_samples
 from backend.data.scenes import builtin_scene
 from backend.data.synthetic import T_BODY_CAM0, SequenceSettings, SyntheticSequence
+from backend.eval.vio import visual_keyframes
 from backend.geometry import so3
 from backend.vio.alignment import Alignment, AlignmentSettings, _imu_params, _preintegrate, _rotation_jacobian_bias_gyro, align_visual_inertial
 
@@ -42,23 +43,16 @@ class Keyframes:
 
 def keyframes(seq: SyntheticSequence, duration_s: float, *, rate_hz: float = 10.0, rotation_deg: float = 0.2, position_fraction: float = 0.005, seed: int = 0) -> Keyframes:
     """Keyframes over [0, duration_s] from the true poses, in c0, scaled and perturbed."""
-    rng = np.random.default_rng([seed, 7])
-    step = int(round(seq.settings.camera_rate_hz / rate_hz))
-    index = np.arange(0, int(round(duration_s * seq.settings.camera_rate_hz)) + 1, step)
-    T = seq.T_world_rect0[index]
-    R_world_c0, p_world_c0 = T[0, :3, :3], T[0, :3, 3]
-    R = R_world_c0.T @ T[:, :3, :3]
-    p = (T[:, :3, 3] - p_world_c0) @ R_world_c0
-    baseline = float(np.mean(np.linalg.norm(np.diff(p, axis=0), axis=1)))
-    R[1:] = R[1:] @ so3.exp(rng.normal(0.0, np.radians(rotation_deg) / np.sqrt(3.0), (len(index) - 1, 3)))
-    p[1:] += rng.normal(0.0, position_fraction * baseline / np.sqrt(3.0), (len(index) - 1, 3))
-    t = seq.timestamps_ns[index]
-    v_c0 = seq.trajectory.velocity(t * 1e-9) @ R_world_c0
-    return Keyframes(t, R, VISUAL_SCALE * p, R_world_c0, v_c0)
+    kf = visual_keyframes(seq, duration_s, rate_hz=rate_hz, rotation_deg=rotation_deg, position_fraction=position_fraction, rng=np.random.default_rng([seed, 7]))
+    return Keyframes(kf.timestamps_ns, kf.R_c0_cam, VISUAL_SCALE * kf.p_c0_cam, kf.R_world_c0, kf.velocity_c0)
 
 
 def sequence(scene: str, *, speed: float, seed: int = 0) -> SyntheticSequence:
-    return SyntheticSequence(builtin_scene(scene), settings=SequenceSettings(duration_s=3.2, seed=seed, speed=speed))
+    # The accelerometer bias is not estimated by the alignment (VINS-Mono's assumption): the
+    # sequences start it at zero here (the rendered default, EuRoC's 0.12 m/s², costs about
+    # 4 % of scale over 3 s; the VIO window estimates it afterwards). The gyro bias keeps its
+    # EuRoC-like default.
+    return SyntheticSequence(builtin_scene(scene), settings=SequenceSettings(duration_s=3.2, seed=seed, speed=speed, imu_bias_accel=(0.0, 0.0, 0.0)))
 
 
 def gravity_error_deg(alignment: Alignment, kf: Keyframes) -> float:
@@ -100,11 +94,11 @@ def test_alignment_on_the_sequence_imu(scene: str) -> None:
     kf = keyframes(seq, 3.0)
     alignment = align_visual_inertial(kf.timestamps_ns, kf.R_c0_cam, kf.p_c0_cam, seq.imu, T_body_cam0=seq.T_body_cam0)
     check_accuracy(alignment, kf)
-    # The true bias is ~3e-5 rad/s (a random walk from zero): only the absolute error means
-    # anything, bounded by the rotation noise (0.2° per keyframe over 3 s: ~1e-3 rad/s).
+    # The rendered gyro bias starts EuRoC-like (0.08 rad/s): within 20 % of it, and within
+    # what the rotation noise allows (0.2° per keyframe over 3 s: ~1e-3 rad/s).
     b_true = true_bias(seq.bias_gyro, seq.imu, kf)
-    assert np.linalg.norm(b_true) < 1e-4
-    assert np.linalg.norm(alignment.bias_gyro - b_true) < 3e-3
+    assert np.linalg.norm(b_true) > 0.05
+    assert np.linalg.norm(alignment.bias_gyro - b_true) < min(3e-3, 0.2 * np.linalg.norm(b_true))
 
 
 @pytest.mark.parametrize("duration_s", [2.0, 3.0])

@@ -1,0 +1,66 @@
+"""`coplanar run --mode vio`: what it writes, and bad input (DESIGN §8): a folder without
+imu0, or with an IMU gap longer than a frame interval, is one `error:` line, exit 2, and
+nothing written."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import shutil
+
+import numpy as np
+
+from tests.app.test_dataset_folders import _one_error_line, _run, rendered  # noqa: F401 (the 0.5 s room folder, with imu0)
+
+
+def test_vio_without_imu0_is_one_line(rendered: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    root = tmp_path / "seq"
+    shutil.copytree(rendered, root)
+    shutil.rmtree(root / "mav0" / "imu0")
+    out = tmp_path / "out"
+    rc, _, err = _run(["--dataset", str(root), "--mode", "vio", "--variant", "PL-w", "--out", str(out)])
+    assert rc == 2
+    _one_error_line(err, ["mav0/imu0", "IMU data is needed for VIO"])
+    assert not out.exists()
+
+
+def test_vio_with_an_imu_gap_longer_than_a_frame_is_one_line(rendered: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    root = tmp_path / "seq"
+    shutil.copytree(rendered, root)
+    csv = root / "mav0" / "imu0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join(lines[:30] + lines[45:]) + "\n")  # 15 samples (75 ms) dropped: longer than 50 ms
+    out = tmp_path / "out"
+    rc, _, err = _run(["--dataset", str(root), "--mode", "vio", "--variant", "PL-w", "--out", str(out)])
+    assert rc == 2
+    _one_error_line(err, ["mav0/imu0/data.csv", "IMU gap", "longer than a frame interval"])
+    assert not out.exists()
+
+
+def test_vio_refuses_the_monte_carlo_worlds_and_the_oracle_on_real_folders(rendered: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    rc, _, err = _run(["--scene", "mc-a", "--mode", "vio", "--variant", "PL-w", "--out", str(tmp_path / "a")])
+    assert rc == 2
+    _one_error_line(err, ["--mode vio", "mc-a"])
+    rc, _, err = _run(["--dataset", str(rendered), "--mode", "vio", "--segmenter", "oracle", "--variant", "PL-w", "--out", str(tmp_path / "b")])
+    assert rc == 2
+    _one_error_line(err, ["--segmenter oracle", "rendered scene"])
+
+
+def test_vio_run_writes_the_outputs_and_the_imu_state(tmp_path: pathlib.Path) -> None:
+    """4 s of `room` at twice the speed (the rendered paths are slow; see the README): the
+    IMU aligns within 3 s, and metrics.json carries the VIO figures."""
+    out = tmp_path / "out"
+    rc, stdout, err = _run(["--scene", "room", "--mode", "vio", "--speed", "2", "--duration", "4", "--segmenter", "oracle", "--variant", "P-w", "--out", str(out)])
+    assert rc == 0, err
+    for name in ("trajectory.txt", "keyframes.txt", "groundtruth.txt", "metrics.json", "map.ply"):
+        assert (out / name).is_file()
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["mode"] == "vio" and m["lost_frames"] == 0
+    vio = m["vio"]
+    assert vio["initialized"] and vio["init_time_s"] <= 3.0
+    assert vio["gravity_error_refined_deg"] < 1.0  # the alignment's own (no accelerometer bias) is reported too
+    assert np.isfinite(vio["alignment"]["gravity_error_deg"])
+    assert vio["alignment"]["bias_gyro_error_pct"] < 20.0
+    assert abs(vio["scale_error_pct"]) < 5.0
+    assert m["ate_rmse_cm"] < 5.0
+    assert set(m["timing_ms"]) >= {"point_dm", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame"}

@@ -1,0 +1,46 @@
+"""The debugger on the VIO pipeline (`coplanar serve --mode vio`), as a user drives it: it
+steps, switches the variant and shows the IMU state (status, velocity, biases, gravity) in
+the report; the README's picture of the VIO mode."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import re
+
+from tests.browser.conftest import close_notifications, field, free_port, open_page, wait_shown
+
+
+def test_vio_debugger_steps_switches_variant_and_shows_the_imu_state(browser, tmp_path) -> None:  # noqa: ANN001
+    from app.cli import build_parser
+    from app.serve_command import build_engine
+    from viewer.app import Debugger
+
+    args = build_parser().parse_args(["serve", "--scene", "room", "--mode", "vio", "--speed", "2", "--duration", "4", "--segmenter", "oracle"])
+    debugger = Debugger(build_engine(args), port=free_port())  # as `coplanar serve` builds it
+    debugger.server.scene.configure_environment_map(hdri=None)
+    try:
+        page = open_page(browser, debugger, height=1250)
+        for k in range(10):  # through the initialization (keyframe 7 at 1.3 s)
+            page.get_by_role("button", name="Step").click()
+            wait_shown(page, f"{k} (PL-w)")
+        snapshot = debugger.history[-1]
+        assert snapshot.imu is not None and snapshot.imu.initialized
+        page.get_by_role("tab", name="Report").click()
+        page.get_by_text(re.compile(r"IMU \(initialized\)")).first.wait_for()
+        page.get_by_text("gyroscope bias (rad/s)").first.wait_for()
+        page.get_by_text("velocity (m/s, world)").first.wait_for()
+        field(page, "Variant").click()
+        page.get_by_role("option", name="P-w", exact=True).click()
+        wait_shown(page, f"{snapshot.keyframe} (P-w)")
+        page.get_by_text(re.compile(rf"keyframe {snapshot.keyframe} · P-w$")).first.wait_for()
+        page.get_by_text(re.compile(r"IMU \(initialized\)")).first.wait_for()  # the re-optimized window keeps its IMU state
+        page.get_by_role("button", name="Step").click()
+        wait_shown(page, f"{snapshot.keyframe + 1} (P-w)")
+        close_notifications(page)
+        page.wait_for_timeout(1500)
+        path = pathlib.Path(os.environ.get("COPLANAR_README_SCREENSHOT_VIO", tmp_path / "vio_debugger.png"))
+        page.screenshot(path=str(path))
+        page.close()
+    finally:
+        debugger.stop()
