@@ -84,11 +84,15 @@ class VioSettings(StereoSettings):
     windows with IMU factors refine it); the gauge prior's σ (`gauge_sigma_m`, `gauge_sigma_yaw_rad` for
     position and yaw, `gauge_sigma_tilt_rad` for roll and pitch) and the initial bias σ
     (`bias_sigma_accel`, `bias_sigma_gyro`) and velocity σ (`velocity_sigma`); the bias
-    drift (`rebias_accel`, `rebias_gyro`) beyond which a preintegration is redone."""
+    drift (`rebias_accel`, `rebias_gyro`) beyond which a preintegration is redone. After the
+    initialization a frame the images cannot track takes the IMU's predicted pose and becomes
+    a keyframe, up to `max_imu_only_keyframes` in a row; `max_lost_frames` untracked frames in
+    a row start a new map segment."""
 
     window: int = 10
     fixed_horizon: int = 10  # before the initialization only; after it the prior replaces it
-    keyframe_parallax_px: float = 10.0
+    min_keyframe_observations: int = 3  # a two-view point must be seen once more to stay
+    keyframe_parallax_px: float = 20.0
     max_keyframe_interval_s: float = 0.3
     epipolar_px: float = 2.0
     min_parallax_deg: float = 1.0
@@ -106,6 +110,7 @@ class VioSettings(StereoSettings):
     rebias_accel: float = 0.05
     rebias_gyro: float = 0.003
     max_lost_frames: int = 10
+    max_imu_only_keyframes: int = 10
     triangulation_keyframes: int = 8
     alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2)
 
@@ -161,6 +166,7 @@ class VioEngine(StereoEngine):
         self._flow: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 0), np.uint8))
         self._restart_flow = False
         self._lost_run = 0
+        self._imu_only_run = 0
         self._marginalized_before = 0
 
     def step(self) -> Snapshot:
@@ -206,6 +212,16 @@ class VioEngine(StereoEngine):
                 tracked = self._track(i, kp)
                 reason = self._keyframe_reason(i, kp, tracked)
             timing["tracking"] += 1e3 * (time.perf_counter() - t0)
+            if not tracked.ok and self._initialized and self._imu_only_run < s.max_imu_only_keyframes:
+                # The images alone lost the map (a fast turn): the IMU's prediction is the
+                # pose, and the frame becomes a keyframe so that new points are triangulated
+                # from it; the window's IMU factors keep it consistent.
+                self._imu_only_run += 1
+                messages.append(f"frame {i}: tracked by the IMU alone ({tracked.inliers} map points matched)")
+                tracked = _Tracked(tracked.R, tracked.t, tracked.match, tracked.inliers, True)
+                reason = "IMU only"
+            elif tracked.ok and reason != "first frame":
+                self._imu_only_run = 0
             self._remember_frame(i, tracked.R, tracked.t)
             if not tracked.ok:
                 lost += 1
