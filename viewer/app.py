@@ -44,6 +44,7 @@ PLOT_DEBOUNCE_S = 0.4  # plots are drawn once updates pause this long
 PLOT_PLAY_PERIOD_S = 1.0  # and while playing, at most this often
 VIEW_SETTLE_S = 1.5  # a view set by the debugger counts as untouched this long (the browser animates to it)
 AB_OFF = "off"
+ORACLE = "oracle (ground truth)"  # the segmenter of rendered scenes that reads the renderer's plane ids
 SHORTCUTS = "**keys**: space play/pause · → step · shift+← / shift+→ scrub · F frame all"
 
 
@@ -121,9 +122,10 @@ class Debugger:
         with gui.add_folder("Run"):
             self.variant = gui.add_dropdown("Variant", VARIANTS, initial_value=self.engine.variant)
             self.segmenter = None
-            if hasattr(self.engine, "segmenter"):  # the stereo pipeline: plane instances from stereo or the network
-                current = "learned" if type(self.engine.segmenter).__name__ == "LearnedSegmenter" else "geometric"
-                self.segmenter = gui.add_dropdown("Segmenter", ("geometric", "learned"), initial_value=current)
+            if hasattr(self.engine, "segmenter"):  # image pipelines: plane instances from stereo, the network or (rendered) the truth
+                kinds = ("geometric", "learned") + ((ORACLE,) if hasattr(getattr(self.engine, "data_source", None), "views") else ())
+                current = {"LearnedSegmenter": "learned", "OracleSegmenter": ORACLE}.get(type(self.engine.segmenter).__name__, "geometric")
+                self.segmenter = gui.add_dropdown("Segmenter", kinds, initial_value=current)
             self.step_button = gui.add_button("Step")
             self.play = gui.add_checkbox("Play", initial_value=False)
             self.rate = gui.add_slider("Rate (Hz)", min=0.5, max=30.0, step=0.5, initial_value=self.settings.rate_hz)
@@ -454,8 +456,13 @@ class Debugger:
         self.ab_text.content = f"*{why}*"
 
     def _set_segmenter(self, kind: str) -> None:
-        """Plane instances from the next keyframe on: stereo disparity or the network."""
-        if kind == "learned":
+        """Plane instances from the next keyframe on: stereo disparity, the network, or on
+        rendered scenes the renderer's exact plane ids (the oracle, a reference)."""
+        if kind == ORACLE:
+            from backend.frontend.segmentation_oracle import OracleSegmenter
+
+            segmenter = OracleSegmenter(self.engine.data_source)
+        elif kind == "learned":
             from backend.frontend.segmentation_learned import LearnedSegmenter, ModelError
 
             try:

@@ -583,7 +583,7 @@ class StereoEngine:
         timing["plane_seg"] = timing["plane_fit"] = 0.0
         if use_planes:
             t0 = time.perf_counter()
-            masks = self.segmenter.segment(left, right, cam)
+            masks = self._segment(i, left, right)
             timing["plane_seg"] = 1e3 * (time.perf_counter() - t0)
             t0 = time.perf_counter()
             detection = self._detect_planes(obs, masks, new_points, new_lines, rng)
@@ -609,6 +609,14 @@ class StereoEngine:
         tracking = Tracking(frames=frames, lost_frames=lost, reinitializations=reinitializations, tracked_points=int(np.count_nonzero(p_match >= 0)), tracked_lines=int(np.count_nonzero(l_match >= 0)), keyframe_reason=reason)
         self._last = self._snapshot(k, detection, self._det_state, report, hessian, image=image, tracking=tracking, message=message)
         return self._last
+
+    def _segment(self, i: int, left: np.ndarray, right: np.ndarray) -> PlaneMasks:
+        """Plane instances of frame i: from the segmenter's images, or by frame for the
+        oracle of rendered scenes (`segment_frame`)."""
+        by_frame = getattr(self.segmenter, "segment_frame", None)
+        if by_frame is not None:
+            return by_frame(i)
+        return self.segmenter.segment(left, right, self.camera)
 
     def _add_keyframe(self, i: int, R: np.ndarray, t: np.ndarray) -> None:
         self._R_est.append(R)

@@ -429,7 +429,7 @@ class VioEngine(StereoEngine):
         timing["plane_seg"] = timing["plane_fit"] = 0.0
         if use_planes and k > self._segment_start:
             t0 = time.perf_counter()
-            masks = self._segment(i, left)
+            masks = self._segment(i, left, left)  # monocular: the segmenter sees the left image only
             timing["plane_seg"] = 1e3 * (time.perf_counter() - t0)
             t0 = time.perf_counter()
             detection = self._detect_planes(obs, masks, new_points, new_lines, rng)
@@ -457,12 +457,6 @@ class VioEngine(StereoEngine):
         tracking = Tracking(frames=frames, lost_frames=lost, reinitializations=reinitializations, tracked_points=int(np.count_nonzero(p_match >= 0)), tracked_lines=int(np.count_nonzero(l_match >= 0)), keyframe_reason=reason)
         self._last = self._snapshot(k, detection, self._det_state, report, hessian, image=image, tracking=tracking, message="; ".join(self._messages))
         return self._last
-
-    def _segment(self, i: int, left: np.ndarray) -> PlaneMasks:
-        frame = getattr(self.segmenter, "segment_frame", None)
-        if frame is not None:
-            return frame(i)
-        return self.segmenter.segment(left, left, self.camera)
 
     def _add_inertial_state(self, k: int) -> None:
         """Velocity and biases of the new keyframe (IMU prediction after the initialization)

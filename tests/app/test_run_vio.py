@@ -64,3 +64,12 @@ def test_vio_run_writes_the_outputs_and_the_imu_state(tmp_path: pathlib.Path) ->
     assert abs(vio["scale_error_pct"]) < 5.0
     assert m["ate_rmse_cm"] < 5.0
     assert set(m["timing_ms"]) >= {"point_dm", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame"}
+
+
+def test_stereo_run_with_the_oracle_segmenter(tmp_path: pathlib.Path) -> None:
+    """The oracle serves the stereo pipeline too (the reference for its segmenters)."""
+    out = tmp_path / "out"
+    rc, _, err = _run(["--scene", "room", "--duration", "2", "--segmenter", "oracle", "--variant", "PL-w", "--keyframes", "4", "--out", str(out)])
+    assert rc == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    assert "oracle segmenter" in m["source"] and m["planes"] >= 2
