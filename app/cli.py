@@ -46,8 +46,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except Exception as e:  # a dataset problem the user can fix: one line, no traceback
         from backend.data.errors import DatasetError
+        from backend.export.map_files import MissingLibraryError
 
-        if not isinstance(e, DatasetError):
+        if not isinstance(e, (DatasetError, MissingLibraryError)):
             raise
         print(f"error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -13,7 +13,10 @@ Outputs in `--out DIR`:
   DIR/trajectory.txt -a` reproduces `ate_rmse_cm` (`-as`: `ate_sim3_rmse_cm`), and
   `evo_rpe tum DIR/groundtruth.txt DIR/trajectory.txt --delta 1 --delta_unit m`
   reproduces `rpe_cm_per_m`.
-- `metrics.json` (see :func:`trajectory_metrics` for the trajectory figures) and `map.ply`.
+- `metrics.json` (see :func:`trajectory_metrics` for the trajectory figures), the combined
+  `map.ply`, and the map as the usual 3D tools read it (`backend.export.map_files`):
+  `points.ply` (point cloud), `lines.ply` (line set), `planes.ply` (triangle mesh with
+  `plane_id`), `cameras.ply` (keyframe frustums).
 """
 
 from __future__ import annotations
@@ -33,13 +36,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     from app.sources import add_source_arguments
     from backend.optim.problem import VARIANTS
 
-    p = sub.add_parser("run", help="run the engine headless; write trajectory.txt (every tracked frame), keyframes.txt, groundtruth.txt, metrics.json and map.ply")
+    p = sub.add_parser("run", help="run the engine headless; write trajectory.txt (every tracked frame), keyframes.txt, groundtruth.txt, metrics.json, map.ply "
+                                       "and points.ply, lines.ply, planes.ply, cameras.ply")
     add_source_arguments(p, duration_default=DEFAULT_DURATION_S)
     p.add_argument("--variant", required=True, choices=VARIANTS, help="parametrization")
     p.add_argument("--out", required=True, type=pathlib.Path, help="output folder (created if missing)")
     p.add_argument("--frames", type=int, default=None, metavar="N", help="stereo inputs: stop after the first N frames (default all)")
     p.add_argument("--keyframes", type=int, default=None, metavar="N",
                    help="stop after N keyframes (default: mc-a / mc-b one pass of the trajectory, stereo inputs all)")
+    p.add_argument("--dense", action="store_true",
+                   help="image inputs: fuse the keyframes' depth (rendered, or stereo matching) into a TSDF at the estimated poses after the run; "
+                        "write mesh.ply and, on rendered scenes, the mesh's distance to the true planes in metrics.json")
     p.set_defaults(run=run, history=1)
 
 
@@ -120,15 +127,16 @@ def trajectory_metrics(estimate, ground_truth) -> tuple[dict, object]:  # noqa: 
 
 def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, groundtruth) -> None:  # noqa: ANN001
     """trajectory.txt (`frames`: every tracked frame), keyframes.txt, groundtruth.txt,
-    metrics.json and map.ply."""
-    from backend.export.ply import write_ply
+    metrics.json, the combined map.ply and the typed points.ply, lines.ply, planes.ply and
+    cameras.ply (backend.export.map_files)."""
+    from backend.export.map_files import write_map_files
     from backend.export.tum import write_tum
 
     write_tum(out / "trajectory.txt", frames)
     write_tum(out / "keyframes.txt", snapshot.estimate)
     write_tum(out / "groundtruth.txt", groundtruth)
     (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2, allow_nan=False) + "\n")
-    write_ply(out / "map.ply", snapshot)
+    write_map_files(snapshot, out)
 
 
 def _no_ground_truth(estimate):  # noqa: ANN001, ANN202
@@ -205,7 +213,7 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
     _write_outputs(args.out, snapshot, metrics, frames=snapshot.estimate, groundtruth=evaluated)
     print(f"{n} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned), RMSE {_cm(metrics['rmse_cm'])}, "
           f"{len(snapshot.planes)} planes; {mean['total']:.1f} ms per keyframe; "
-          f"wrote {args.out}/trajectory.txt (keyframes), keyframes.txt, groundtruth.txt, metrics.json, map.ply")
+          f"wrote {args.out}/trajectory.txt (keyframes), keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply")
     return 0
 
 
@@ -235,6 +243,33 @@ def stereo_timing(steps: list[tuple[int, dict[str, float]]]) -> dict:
     timing = {k: mean.get(k) for k in ("point_dm", "tracking", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame")}
     timing["all_stages"] = mean
     return timing
+
+
+def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
+    """`--dense`: every keyframe's depth fused at its final estimated pose into a TSDF
+    (backend.eval.dense), the mesh written to `path`; its size, the fusion time per keyframe
+    and, on rendered scenes, the distance of its vertices to the true planes (cm)."""
+    import numpy as np
+
+    from backend.eval.dense import distance_to_planes, fuse_keyframes, keyframe_frames, map_bounds
+
+    frames = keyframe_frames(source, snapshot.estimate.timestamp_ns)
+    t = np.asarray(snapshot.estimate.t_world_camera)
+    fusion = fuse_keyframes(source, frames, np.asarray(snapshot.estimate.R_world_camera), t, map_bounds(snapshot.points.p_world, t))
+    mesh = fusion.mesh()
+    o3d = fusion._o3d
+    if not o3d.io.write_triangle_mesh(str(path), mesh):
+        raise OSError(f"{path}: open3d could not write the mesh")
+    out = {
+        "keyframes_fused": fusion.keyframes, "fusion_ms_per_keyframe": fusion.time_ms / max(fusion.keyframes, 1),
+        "voxel_m": fusion.voxel_m, "vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
+        "distance_to_true_planes_cm": None,
+    }
+    table = getattr(source, "plane_table", None)
+    if table is not None and len(mesh.vertices):
+        d = 100.0 * distance_to_planes(np.asarray(mesh.vertices), table)
+        out["distance_to_true_planes_cm"] = {"median": float(np.median(d)), "p90": float(np.percentile(d, 90)), "within_2cm": float(np.mean(d < 2.0))}
+    return out
 
 
 def vio_metrics(snapshot, frames) -> dict:  # noqa: ANN001
@@ -341,10 +376,12 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
     if snapshot.imu is not None:
         metrics["mode"] = "vio"
         metrics["vio"] = vio_metrics(snapshot, frames)
+    if getattr(args, "dense", False):
+        metrics["dense"] = dense_mesh(engine.data_source, snapshot, args.out / "mesh.ply")
     _write_outputs(args.out, snapshot, metrics, frames=frames.estimate, groundtruth=evaluated)
     per_frame = metrics["timing_ms"]["total_per_frame"]
     print(f"{engine.frames} frames, {metrics['keyframes']} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned, "
           f"{metrics['frames_evaluated']} frames), RMSE {_cm(metrics['rmse_cm'])}, {len(snapshot.planes)} planes, {lost} lost frames, "
           f"{reinitializations} re-initializations; {per_frame:.1f} ms per frame; "
-          f"wrote {args.out}/trajectory.txt, keyframes.txt, groundtruth.txt, metrics.json, map.ply")
+          f"wrote {args.out}/trajectory.txt, keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply")
     return 0

@@ -47,6 +47,16 @@ if [ ! -x .venv/bin/python ]; then
   "$python_bin" -m venv .venv
 fi
 
+# open3d (the typed map exports and the dense check) needs libusb-1.0 to import.
+if ! { ldconfig -p 2>/dev/null | grep -q 'libusb-1\.0\.so\.0'; }; then
+  if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = "0" ]; then
+    echo "installing libusb-1.0-0 (Debian), which open3d needs" >&2
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+  else
+    echo "warning: libusb-1.0 is missing and cannot be installed (needs apt-get and root): the map-file exports and --dense will say so" >&2
+  fi
+fi
+
 stamp=".venv/.coplanar-installed${extras}"
 want="$(sha256sum pyproject.toml | cut -d' ' -f1)"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then

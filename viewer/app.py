@@ -153,8 +153,16 @@ class Debugger:
                 )
             }
             self.layer_note = gui.add_markdown("")
+            self.dense = None
+            source = getattr(self.engine, "data_source", None)
+            if source is not None and hasattr(source, "rectified_pair"):  # image pipelines: depth to fuse
+                self.dense_box = gui.add_checkbox("Dense mesh (TSDF)", initial_value=False)
+                from viewer.dense import DenseLayer
+
+                self.dense = DenseLayer(self.server, source, gui.add_markdown(""))
         with gui.add_folder("Export"):
             self.export_button = gui.add_button("Download map (PLY)")
+            self.export_files = gui.add_button("Download map files (zip: points, lines, planes, cameras)")
             self.export_trajectory = gui.add_button("Download trajectory (TUM)")
             self.export_keyframes = gui.add_button("Download keyframe poses (TUM)")
         gui.add_markdown(SHORTCUTS)
@@ -235,6 +243,9 @@ class Debugger:
         self.frame_button.on_click(lambda event: self._frame(event.client, keep_direction=True))
         self.reset_view_button.on_click(lambda event: self._frame(event.client, keep_direction=False))
         self.export_button.on_click(lambda event: self._export(event.client, "map"))
+        if self.dense is not None:
+            self.dense_box.on_update(lambda _: self.dense.set_enabled(self.dense_box.value, self._shown))
+        self.export_files.on_click(lambda event: self._export(event.client, "files"))
         self.export_trajectory.on_click(lambda event: self._export(event.client, "trajectory"))
         self.export_keyframes.on_click(lambda event: self._export(event.client, "keyframes"))
         self.compare_box.on_update(lambda _: self._commands.put(("compare", None)))
@@ -484,6 +495,8 @@ class Debugger:
     def _reset(self) -> None:
         self._busy("resetting …")
         self.engine.reset()
+        if self.dense is not None:
+            self.dense.clear()
         self.history.clear()
         self._stop_ab("A/B run off (reset)")
         self._states_keyframe = None
@@ -564,6 +577,8 @@ class Debugger:
             )
         self.server.flush()
         self._request_plots()
+        if self.dense is not None:
+            self.dense.request(snapshot)
 
     def _update_compare(self) -> None:
         self.compare_image.visible = bool(self.compare_box.value)
@@ -733,6 +748,15 @@ class Debugger:
         stem = f"coplanar_kf{snapshot.keyframe:05d}_{snapshot.variant}"
         if what == "map":
             client.send_file_download(f"coplanar_map_kf{snapshot.keyframe:05d}_{snapshot.variant}.ply", snapshot_ply_bytes(snapshot), save_immediately=True)
+        elif what == "files":
+            from backend.export.map_files import MissingLibraryError, map_files_zip
+
+            try:
+                data = map_files_zip(snapshot)
+            except MissingLibraryError as e:
+                client.add_notification("Export needs open3d", str(e), auto_close_seconds=10.0, color="red")
+                return
+            client.send_file_download(f"coplanar_map_kf{snapshot.keyframe:05d}_{snapshot.variant}.zip", data, save_immediately=True)
         elif what == "keyframes":
             client.send_file_download(f"{stem}_keyframes.txt", panels.tum_bytes(snapshot.estimate), save_immediately=True)
         else:
@@ -771,4 +795,6 @@ class Debugger:
         self._worker.join(timeout=10.0)
         self._plot_event.set()
         self._plotter.join(timeout=5.0)
+        if self.dense is not None:
+            self.dense.stop()
         self.server.stop()

@@ -20,7 +20,7 @@ import numpy as np
 
 from backend.data.euroc_writer import EurocWriter, GroundTruthRows
 from backend.data.motion import ImuData, ImuNoise, add_imu_noise, imu_samples, random_trajectory
-from backend.data.render import R_BODY_CAMERA_FORWARD, View, render_stereo
+from backend.data.render import R_BODY_CAMERA_FORWARD, View, render_stereo, render_view
 from backend.data.scenes import Scene
 from backend.geometry.camera import PinholeCamera
 
@@ -133,6 +133,14 @@ class SyntheticSequence:
         if len(self._cache) > self._cache_frames:
             self._cache.popitem(last=False)
         return pair
+
+    def left_depth(self, index: int) -> np.ndarray:
+        """Depth (H, W) float32 of frame `index`'s left view (m along the camera's z, inf
+        where nothing is hit), rendered without the frame cache: safe to call from another
+        thread than the one reading frames (the debugger's dense check)."""
+        index = range(len(self))[index]
+        T = self.T_world_rect0[index]
+        return render_view(self.scene, self.camera, T[:3, :3], T[:3, 3]).depth
 
     def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right uint8 images (H, W) of frame `index`."""

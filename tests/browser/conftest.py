@@ -48,6 +48,17 @@ def start_debugger(*, sequence: str = "a", **engine_options: object):  # noqa: A
     return debugger
 
 
+def start_served(*argv: str):  # noqa: ANN201
+    """A debugger on a free port over the engine `coplanar serve ARGV` builds, HDRI off."""
+    from app.cli import build_parser
+    from app.serve_command import build_engine
+    from viewer.app import Debugger
+
+    debugger = Debugger(build_engine(build_parser().parse_args(["serve", *argv])), port=free_port())
+    debugger.server.scene.configure_environment_map(hdri=None)
+    return debugger
+
+
 @pytest.fixture
 def debugger() -> Iterator[object]:
     d = start_debugger()

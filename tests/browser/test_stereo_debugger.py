@@ -8,7 +8,7 @@ import pathlib
 
 import numpy as np
 
-from tests.browser.conftest import close_notifications, free_port, open_page, wait_shown
+from tests.browser.conftest import close_notifications, open_page, start_served, wait_shown
 
 
 def test_stereo_debugger_shows_keyframe_image_and_map(browser, tmp_path) -> None:  # noqa: ANN001
@@ -16,13 +16,7 @@ def test_stereo_debugger_shows_keyframe_image_and_map(browser, tmp_path) -> None
     when set (docs/stereo_debugger.png), else to a temporary file."""
     from PIL import Image
 
-    from app.cli import build_parser
-    from app.serve_command import build_engine
-    from viewer.app import Debugger
-
-    engine = build_engine(build_parser().parse_args(["serve", "--scene", "room", "--duration", "6"]))  # as `coplanar serve` builds it
-    debugger = Debugger(engine, port=free_port())
-    debugger.server.scene.configure_environment_map(hdri=None)
+    debugger = start_served("--scene", "room", "--duration", "6")  # as `coplanar serve` builds it
     try:
         for _ in range(12):
             debugger.submit("step")

@@ -8,17 +8,11 @@ import os
 import pathlib
 import re
 
-from tests.browser.conftest import close_notifications, field, free_port, open_page, wait_shown
+from tests.browser.conftest import close_notifications, field, open_page, start_served, wait_shown
 
 
 def test_vio_debugger_steps_switches_variant_and_shows_the_imu_state(browser, tmp_path) -> None:  # noqa: ANN001
-    from app.cli import build_parser
-    from app.serve_command import build_engine
-    from viewer.app import Debugger
-
-    args = build_parser().parse_args(["serve", "--scene", "room", "--mode", "vio", "--speed", "2", "--duration", "4", "--segmenter", "oracle"])
-    debugger = Debugger(build_engine(args), port=free_port())  # as `coplanar serve` builds it
-    debugger.server.scene.configure_environment_map(hdri=None)
+    debugger = start_served("--scene", "room", "--mode", "vio", "--speed", "2", "--duration", "4", "--segmenter", "oracle")
     try:
         page = open_page(browser, debugger, height=1250)
         for k in range(10):  # through the initialization (keyframe 7 at 1.3 s)
