@@ -207,7 +207,7 @@ class VioEngine(StereoEngine):
                     R, t = self._R_est[-1], self._t_est[-1]
                     tracked, reason = _Tracked(R.copy(), t.copy(), np.full(0, -1, np.int64), 0, True), "first frame"
                     break
-                tracked, reason = bootstrap[0], "initial pair"
+                tracked, reason, kp = bootstrap[0], "initial pair", bootstrap[4]
             else:
                 tracked = self._track(i, kp)
                 reason = self._keyframe_reason(i, kp, tracked)
@@ -276,9 +276,8 @@ class VioEngine(StereoEngine):
             ids, uv_prev = ids[ok], uv[ok].astype(float)
         self._flow = (ids, uv_prev, image)
         if len(ids) < s.init_min_matches:
-            if len(ids) < 8:
-                self._messages.append(f"frame {i}: too few features followed from the first keyframe; starting again from this frame")
-                self._restart_flow = True
+            self._messages.append(f"frame {i}: {len(ids)} features followed from the first keyframe (fewer than {s.init_min_matches}); starting again from this frame")
+            self._restart_flow = True
             return None
         kp0 = self._kf_features[k0][0]
         uv0, uv1 = kp0.uv[ids], uv_prev
@@ -305,26 +304,43 @@ class VioEngine(StereoEngine):
         z0 = (pts - ts[0]) @ Rs[0]
         z1 = (pts - ts[1]) @ Rs[1]
         good = np.all(np.isfinite(pts), axis=1) & (z0[:, 2] > 0) & (z1[:, 2] > 0)
-        if good.sum() < s.init_min_matches // 2:
+        if good.sum() < s.init_min_matches:
             return None
         scale = s.init_median_depth / float(np.median(z0[good, 2]))
         t1 = t_w0 + scale * (R_w0 @ t_01)
         pts = ts[0] + scale * (pts - ts[0])
         sel = sel[good]
-        # The followed features become keypoints of frame i (ORB descriptors at their pixels).
-        nearest = self._nearest_keypoints(kp, uv1[sel])
+        # The followed features become keypoints of frame i: the ORB keypoint within 2 px, or
+        # a new keypoint with its ORB descriptor computed at the followed pixel.
+        kp, nearest = self._with_followed_keypoints(kp, uv1[sel], image)
         keep = nearest >= 0
         tracked = _Tracked(Rs[1], t1, np.zeros(0, np.int64), int(keep.sum()), True)
-        return tracked, ids[sel][keep], nearest[keep], pts[good][keep]
+        return tracked, ids[sel][keep], nearest[keep], pts[good][keep], kp
 
-    @staticmethod
-    def _nearest_keypoints(kp: Keypoints, uv: np.ndarray, *, radius_px: float = 2.0) -> np.ndarray:
-        """Index of the keypoint within `radius_px` of each pixel (-1: none), one-to-one."""
-        if len(kp.uv) == 0 or len(uv) == 0:
-            return np.full(len(uv), -1, np.int64)
-        d = np.linalg.norm(uv[:, None, :] - kp.uv[None, :, :], axis=2)
-        rows, cols = np.nonzero(d <= radius_px)
-        return best_matches(rows, cols, d[rows, cols], n_rows=len(uv), max_distance=radius_px, ratio=1.01)
+    def _with_followed_keypoints(self, kp: Keypoints, uv: np.ndarray, image: np.ndarray, *, radius_px: float = 2.0) -> tuple[Keypoints, np.ndarray]:
+        """`kp` with a keypoint for each followed pixel `uv` (M, 2) that has no ORB keypoint
+        within `radius_px` (its ORB descriptor computed there, at the finest level), and the
+        keypoint index of each pixel (-1 where no descriptor could be computed: too near the
+        border)."""
+        index = np.full(len(uv), -1, np.int64)
+        if len(kp.uv) and len(uv):
+            d = np.linalg.norm(uv[:, None, :] - kp.uv[None, :, :], axis=2)
+            rows, cols = np.nonzero(d <= radius_px)
+            index = best_matches(rows, cols, d[rows, cols], n_rows=len(uv), max_distance=radius_px, ratio=1.01)
+        missing = np.flatnonzero(index < 0)
+        if len(missing) == 0:
+            return kp, index
+        orb = cv2.ORB_create(edgeThreshold=19, patchSize=31)
+        points = [cv2.KeyPoint(float(x), float(y), 31.0, -1.0, 0.0, 0, j) for j, (x, y) in zip(missing, uv[missing])]
+        points, desc = orb.compute(image, points)
+        if desc is None or len(points) == 0:
+            return kp, index
+        which = np.array([p.class_id for p in points], np.int64)
+        index[which] = len(kp.uv) + np.arange(len(points))
+        grown = Keypoints(
+            uv=np.concatenate([kp.uv, uv[which]]), descriptors=np.concatenate([kp.descriptors, desc]), octave=np.concatenate([kp.octave, np.zeros(len(points), kp.octave.dtype)])
+        )
+        return grown, index
 
     def _gyro_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray:
         """Camera rotation `R_cam0_cam1` from the gyroscope between two times (the current
@@ -490,7 +506,7 @@ class VioEngine(StereoEngine):
         fresh = np.zeros(0, np.int64)
         if bootstrap is not None:
             self._bootstrapping = False
-            _, idx0, idx1, p_w = bootstrap
+            _, idx0, idx1, p_w, _ = bootstrap
             new_points, fresh = self._add_points(k - 1, self._kf_features[k - 1][0], idx0, kp, idx1, p_w)
         elif k > self._segment_start:
             # With the previous keyframes, newest first: a feature too close to its match in
