@@ -273,43 +273,55 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
 
 
 def vio_metrics(snapshot, frames) -> dict:  # noqa: ANN001
-    """The VIO part of metrics.json: the initialization (keyframe, time, what the alignment
-    estimated and, on rendered scenes, its errors; the gravity direction error after the
+    """The VIO part of metrics.json: the first initialization (keyframe, time, what the
+    alignment estimated and, on rendered scenes, its errors; the latest one's too, after a
+    loss VIO starts again; the gravity direction error after the
     refinement by the windows with IMU factors), the last keyframe's velocity and biases,
     and the scale error of the whole trajectory (the Sim(3) alignment's scale minus one, in
     percent, over the tracked frames with ground truth after the initialization)."""
     import numpy as np
 
-    from backend.eval.trajectory import umeyama_alignment
+    from backend.eval.trajectory import ate_rmse, umeyama_alignment
 
     imu = snapshot.imu
+    first = imu.first_init_keyframe
+
+    def time_s(k: int) -> float | None:
+        return float((snapshot.estimate.timestamp_ns[k] - snapshot.estimate.timestamp_ns[0]) * 1e-9) if k >= 0 else None
+
     out = {
-        "initialized": imu.initialized, "status": imu.status, "init_keyframe": imu.init_keyframe,
-        "init_time_s": float((snapshot.estimate.timestamp_ns[imu.init_keyframe] - snapshot.estimate.timestamp_ns[0]) * 1e-9) if imu.init_keyframe >= 0 else None,
-        "alignment": imu.report, "velocity_world": imu.velocity_world[-1].tolist(), "bias_accel": imu.bias[-1][:3].tolist(), "bias_gyro": imu.bias[-1][3:].tolist(),
+        "initialized": imu.initialized, "status": imu.status,
+        "init_keyframe": first, "init_time_s": time_s(first), "alignment": imu.first_report,
+        "last_init_keyframe": imu.init_keyframe, "last_init_time_s": time_s(imu.init_keyframe), "last_alignment": imu.report,
+        "velocity_world": imu.velocity_world[-1].tolist(), "bias_accel": imu.bias[-1][:3].tolist(), "bias_gyro": imu.bias[-1][3:].tolist(),
         "scale_error_pct": None,
     }
-    if imu.init_keyframe >= 0 and snapshot.ground_truth is not None:
+    if first >= 0 and snapshot.ground_truth is not None:
         # Gravity after the refinement: the angle between the world's vertical seen from the
         # estimated and from the true keyframe orientation (roll and pitch error), at the
         # initialization keyframe as the windows with IMU factors left it, and over all
         # keyframes since.
         z = np.array([0.0, 0.0, 1.0])
-        R_est = np.asarray(snapshot.estimate.R_world_camera)[imu.init_keyframe:]
-        R_gt = np.asarray(snapshot.ground_truth.R_world_camera)[imu.init_keyframe:]
+        R_est = np.asarray(snapshot.estimate.R_world_camera)[first:]
+        R_gt = np.asarray(snapshot.ground_truth.R_world_camera)[first:]
         ok = np.all(np.isfinite(R_gt.reshape(len(R_gt), -1)), axis=1)
         a, b = R_est[ok].transpose(0, 2, 1) @ z, R_gt[ok].transpose(0, 2, 1) @ z
         tilt = np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1.0, 1.0)))
         if len(tilt):
             out["gravity_error_refined_deg"] = float(tilt[0])
             out["tilt_error_median_deg"] = float(np.median(tilt))
-    if imu.init_keyframe >= 0:
-        t0 = snapshot.estimate.timestamp_ns[imu.init_keyframe]
+    if first >= 0:
+        t0 = snapshot.estimate.timestamp_ns[first]
         p_est, p_gt = np.asarray(frames.estimate.t_world_camera), np.asarray(frames.ground_truth.t_world_camera)
         sel = (np.asarray(frames.estimate.timestamp_ns) >= t0) & np.all(np.isfinite(p_gt), axis=1)
         if sel.sum() >= 3:
             _, _, scale = umeyama_alignment(p_est[sel], p_gt[sel], with_scale=True)
             out["scale_error_pct"] = float(100.0 * (scale - 1.0))
+            # The frames before the first initialization have no metric scale (a failed start
+            # keeps its arbitrary unit): VIO's accuracy is that of the frames from it on.
+            out["frames_after_init"] = int(sel.sum())
+            out["ate_after_init_cm"] = float(100.0 * ate_rmse(p_est[sel], p_gt[sel], align="se3"))
+            out["ate_sim3_after_init_cm"] = float(100.0 * ate_rmse(p_est[sel], p_gt[sel], align="sim3"))
     return out
 
 

@@ -196,7 +196,7 @@ class Tracking:
 class ImuState:
     """The VIO's inertial state: whether the visual-inertial initialization succeeded, a
     one-line status (what the start is waiting for, why an alignment was rejected, what it
-    estimated), the keyframe it succeeded at (-1: not yet) and its figures (`report`: scale,
+    estimated), the keyframe the latest one succeeded at (-1: not yet) and its figures (`report`: scale,
     gyro bias, gravity, quality; against the truth where known), and per keyframe so far the
     velocity (K, 3) m/s in the world frame and the biases (K, 6) `(b_a m/s², b_g rad/s)`;
     gravity in the world frame (m/s², NaN before the initialization); the true velocity and
@@ -211,6 +211,8 @@ class ImuState:
     gravity_world: np.ndarray
     velocity_true: np.ndarray | None = None
     bias_true: np.ndarray | None = None
+    first_init_keyframe: int = -1       # the first initialization (after a loss VIO starts again and initializes anew)
+    first_report: dict = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)

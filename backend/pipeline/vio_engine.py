@@ -110,7 +110,7 @@ class VioSettings(StereoSettings):
     rebias_accel: float = 0.05
     rebias_gyro: float = 0.003
     max_lost_frames: int = 10
-    max_imu_only_keyframes: int = 10
+    max_imu_only_keyframes: int = 40
     triangulation_keyframes: int = 8
     alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2)
 
@@ -160,6 +160,7 @@ class VioEngine(StereoEngine):
         self._init_status = "structure from motion: waiting for parallax"
         self._init_report: dict = {}
         self._init_keyframe = -1
+        self._first_init: tuple[int, dict] = (-1, {})  # the first successful initialization and its figures
         self._kf_features: dict[int, tuple[Keypoints, np.ndarray]] = {}
         self._kf_segments: dict[int, tuple[Segments, np.ndarray]] = {}
         self._bootstrapping = True  # no map in the segment yet: frames are matched with its first keyframe
@@ -694,6 +695,8 @@ class VioEngine(StereoEngine):
         self._init_keyframe = k
         truth = self._init_truth(kfs, result)
         self._init_report.update(truth)
+        if self._first_init[0] < 0:
+            self._first_init = (k, dict(self._init_report))
         self._init_status = f"initialized at keyframe {k} ({n_kf} keyframes, {span:.1f} s): scale {result.scale:.3f}, gyro bias {np.round(result.bias_gyro, 4).tolist()} rad/s"
         self._messages.append(self._init_status)
 
@@ -902,6 +905,7 @@ class VioEngine(StereoEngine):
             truth_b = np.concatenate([src.bias_accel[at], src.bias_gyro[at]], axis=1)
         return ImuState(
             initialized=self._initialized, status=self._init_status, init_keyframe=self._init_keyframe, report=dict(self._init_report),
+            first_init_keyframe=self._first_init[0], first_report=dict(self._first_init[1]),
             velocity_world=frozen(vel), bias=frozen(bias), gravity_world=frozen(np.array([0.0, 0.0, -9.81]) if self._initialized else np.full(3, np.nan)),
             velocity_true=None if truth_v is None else frozen(truth_v), bias_true=None if truth_b is None else frozen(truth_b),
         )
