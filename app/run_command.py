@@ -129,14 +129,19 @@ def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, ground
     """trajectory.txt (`frames`: every tracked frame), keyframes.txt, groundtruth.txt,
     metrics.json, the combined map.ply and the typed points.ply, lines.ply, planes.ply and
     cameras.ply (backend.export.map_files)."""
-    from backend.export.map_files import write_map_files
+    from backend.export.map_files import MissingLibraryError, write_map_files
+    from backend.export.ply import write_ply
     from backend.export.tum import write_tum
 
     write_tum(out / "trajectory.txt", frames)
     write_tum(out / "keyframes.txt", snapshot.estimate)
     write_tum(out / "groundtruth.txt", groundtruth)
     (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2, allow_nan=False) + "\n")
-    write_map_files(snapshot, out)
+    try:
+        write_map_files(snapshot, out)
+    except MissingLibraryError as e:  # the run's results stay: the combined map without open3d
+        write_ply(out / "map.ply", snapshot)
+        print(f"warning: {e}; wrote map.ply only", file=sys.stderr)
 
 
 def _no_ground_truth(estimate):  # noqa: ANN001, ANN202
@@ -155,6 +160,11 @@ def _cm(value: float) -> str:
 def run(args: argparse.Namespace) -> int:
     from app.sources import build_engine
     from backend.pipeline.sim_engine import SimEngine
+
+    if getattr(args, "dense", False):
+        from backend.export.map_files import require_open3d
+
+        require_open3d()  # before the run: a missing library is one line, not a lost run
 
     engine = build_engine(args, headless=True)
     if isinstance(engine, SimEngine):

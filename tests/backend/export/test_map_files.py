@@ -84,3 +84,23 @@ def test_a_map_without_lines_writes_an_empty_line_set(snapshot, tmp_path: pathli
     write_map_files(no_lines, tmp_path)
     assert len(o3d.io.read_line_set(str(tmp_path / "lines.ply")).lines) == 0
     assert len(o3d.io.read_point_cloud(str(tmp_path / "points.ply")).points) == len(snapshot.points)
+
+
+def test_run_without_open3d_keeps_its_results_and_dense_says_why(monkeypatch: pytest.MonkeyPatch, tmp_path: pathlib.Path, capsys) -> None:  # noqa: ANN001
+    """Without libusb (open3d cannot be imported) `run` still writes its results and the
+    combined map, with a one-line warning; `--dense` refuses at once, one line, exit 2."""
+    from app import cli
+    from backend.export import map_files
+
+    def missing():  # noqa: ANN202
+        raise MissingLibraryError("open3d cannot be imported: the system library libusb-1.0 is missing (Debian: apt-get install libusb-1.0-0)")
+
+    monkeypatch.setattr(map_files, "require_open3d", missing)
+    out = tmp_path / "out"
+    assert cli.main(["run", "--scene", "mc-b", "--variant", "PL-w", "--keyframes", "3", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: open3d cannot be imported" in err and "Traceback" not in err
+    assert (out / "map.ply").is_file() and (out / "metrics.json").is_file() and not (out / "points.ply").exists()
+    assert cli.main(["run", "--scene", "room", "--variant", "PL-w", "--dense", "--out", str(tmp_path / "dense")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: open3d cannot be imported") and "libusb-1.0-0" in lines[0]
