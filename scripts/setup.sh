@@ -48,7 +48,14 @@ if [ ! -x .venv/bin/python ]; then
 fi
 
 # open3d (the typed map exports and the dense check) needs libusb-1.0 to import.
-if ! { ldconfig -p 2>/dev/null | grep -q 'libusb-1\.0\.so\.0'; }; then
+has_libusb() {
+  local f
+  for f in /usr/lib/*/libusb-1.0.so.0 /lib/*/libusb-1.0.so.0 /usr/lib/libusb-1.0.so.0 /usr/lib64/libusb-1.0.so.0; do
+    [ -e "$f" ] && return 0
+  done
+  { /sbin/ldconfig -p 2>/dev/null || ldconfig -p 2>/dev/null; } | grep -q 'libusb-1\.0\.so\.0'
+}
+if ! has_libusb; then
   if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = "0" ]; then
     echo "installing libusb-1.0-0 (Debian), which open3d needs" >&2
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
