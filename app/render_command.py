@@ -8,16 +8,19 @@ import sys
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    from app.options import bounded_float, seed
+    from app.sources import MAX_DURATION_S
     from backend.data.scenes import DEFAULT_SCENE, SCENE_NAMES
 
     p = sub.add_parser("render", help="render a synthetic scene to an EuRoC ASL folder (stereo, IMU, ground truth)")
     p.add_argument("--scene", default=DEFAULT_SCENE, help=f"built-in scene ({', '.join(SCENE_NAMES)}; default {DEFAULT_SCENE}) or a scene JSON file")
     p.add_argument("--out", required=True, type=pathlib.Path, help="output folder (created; must not hold a mav0 folder already)")
-    p.add_argument("--duration", type=float, default=30.0, help="seconds of motion (default 30; 20 Hz stereo, 200 Hz IMU)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the trajectory and the noise (default 0)")
-    p.add_argument("--image-noise", type=float, default=0.0, help="Gaussian image noise, grey levels (default 0)")
-    p.add_argument("--blur", type=float, default=0.0, help="Gaussian blur, pixels (default 0)")
-    p.add_argument("--exposure", type=float, default=0.0, help="relative exposure change, e.g. 0.2 for ±20%% (default 0)")
+    p.add_argument("--duration", type=bounded_float(low=0.0, high=MAX_DURATION_S, low_open=True, unit=" seconds"), default=30.0,
+                   help="seconds of motion (default 30; 20 Hz stereo, 200 Hz IMU)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the trajectory and the noise (default 0)")
+    p.add_argument("--image-noise", type=bounded_float(low=0.0, high=255.0, unit=" grey levels"), default=0.0, help="Gaussian image noise, grey levels (default 0)")
+    p.add_argument("--blur", type=bounded_float(low=0.0, high=50.0, unit=" pixels"), default=0.0, help="Gaussian blur, pixels (default 0, at most 50)")
+    p.add_argument("--exposure", type=bounded_float(low=0.0, high=0.99), default=0.0, help="relative exposure change, e.g. 0.2 for ±20%% (default 0)")
     p.set_defaults(run=run)
 
 

@@ -12,12 +12,13 @@ import numpy as np
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    from app.options import seed
     from backend.optim.problem import VARIANTS
 
     p = sub.add_parser("sim", help="run the Monte-Carlo study of the six variants")
     p.add_argument("--sequence", required=True, choices=("a", "b"), help="a: four walls, 150 poses; b: one wall, 50 poses")
     p.add_argument("--runs", type=int, default=30, help="number of noise draws (default 30)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the world and the noise (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the world and the noise (default 0)")
     p.add_argument("--variants", default="all", help=f"'all' or a comma list of {','.join(VARIANTS)}")
     p.add_argument("--json", required=True, type=pathlib.Path, help="write the medians here (JSON)")
     p.add_argument("--plot", type=pathlib.Path, default=None, help="PNG of RMSE and time per variant (default: the --json path with .png)")

@@ -59,6 +59,7 @@ def load_scene_argument(text: str, *, other_names: tuple[str, ...] = ()):  # noq
 
 def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float) -> None:
     """`--scene` | `--dataset` and the options of the engines they start."""
+    from app.options import seed
     names = scene_names()
     source = p.add_mutually_exclusive_group()
     source.add_argument("--scene", default=None, metavar="NAME|FILE.json",
@@ -71,7 +72,7 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
                    help="rendered scenes: keep every N-th frame (20/N frames per second, N times the motion between frames; default 1)")
     p.add_argument("--speed", type=float, default=None, metavar="F",
                    help="rendered scenes: move along the same path F times faster (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the scene, its noise and the RANSACs (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the scene, its noise and the RANSACs (default 0)")
     p.add_argument("--mislabel", type=float, default=None,
                    help="mc-a / mc-b only: fraction of features with a wrong plane-instance label (default 0.1)")
     p.add_argument("--window", type=int, default=10, help="keyframes optimized per step (default 10)")
