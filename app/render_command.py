@@ -37,11 +37,11 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UsageError(str(e)) from None
     out: pathlib.Path = args.out
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out}: exists and is not a folder")
-    if (out / "mav0").exists():
-        raise UsageError(f"--out {out}: already holds a mav0 folder; choose a new folder")
     try:
+        if out.exists() and not out.is_dir():
+            raise UsageError(f"--out {out}: exists and is not a folder")
+        if (out / "mav0").exists():
+            raise UsageError(f"--out {out}: already holds a mav0 folder; choose a new folder")
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise UsageError(f"--out {out}: cannot create it: {e.strerror or e}") from None

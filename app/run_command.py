@@ -53,9 +53,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _prepare_out(out: pathlib.Path) -> None:
     from app.cli import UsageError
 
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out}: exists and is not a folder")
     try:
+        if out.exists() and not out.is_dir():
+            raise UsageError(f"--out {out}: exists and is not a folder")
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".coplanar-write-test"
         probe.write_bytes(b"")

@@ -32,16 +32,28 @@ def _check_writable_file(path: pathlib.Path, option: str) -> None:
     """Fail early (before hours of work) if `path` cannot be written; leaves no file behind."""
     from app.cli import UsageError
 
-    if path.is_dir() or path.name in ("", ".", ".."):
-        raise UsageError(f"cannot write {option} {path}: Is a directory")
-    existed = path.exists()
     try:
+        if path.is_dir() or path.name in ("", ".", ".."):
+            raise UsageError(f"cannot write {option} {path}: Is a directory")
+        existed = path.exists()
         with open(path, "a"):
             pass
     except OSError as e:
         raise UsageError(f"cannot write {option} {path}: {e.strerror or e}") from None
     if not existed:
         path.unlink()
+
+
+def _check_plot_format(path: pathlib.Path) -> None:
+    """The plot's file extension must be an image format matplotlib writes."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from app.cli import UsageError
+
+    formats = sorted(FigureCanvasAgg.get_supported_filetypes())
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in formats:
+        raise UsageError(f"--plot {path}: unknown image format {suffix!r} (use one of {', '.join(formats)})")
 
 
 def _parse_variants(text: str) -> list[str]:
@@ -113,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--sigma-rel {args.sigma_rel}: must be a positive number")
     _check_writable_file(args.json, "--json")
     plot_path = args.plot if args.plot is not None else args.json.with_suffix(".png")
+    _check_plot_format(plot_path)
     _check_writable_file(plot_path, "--plot")
     if args.hessian_dir is not None:
         try:

@@ -32,3 +32,23 @@ def test_bad_numbers_are_one_line(argv: list[str], words: list[str], tmp_path: p
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and all(w in lines[0] for w in words), err
     assert not out.exists()
+
+
+LONG = "a" * 300  # a path component longer than the file system's 255 bytes
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["run", "--scene", "mc-a", "--variant", "PL-w", "--keyframes", "2", "--out", "{tmp}/" + LONG + "/x"], ["--out", "File name too long"]),
+        (["render", "--scene", "room", "--duration", "0.1", "--out", "{tmp}/" + LONG], ["--out", "File name too long"]),
+        (["sim", "--sequence", "a", "--runs", "1", "--json", "{tmp}/" + LONG + ".json"], ["--json", "File name too long"]),
+        (["sim", "--sequence", "a", "--runs", "1", "--json", "{tmp}/s.json", "--plot", "{tmp}/out.xyz"], ["--plot", "unknown image format 'xyz'"]),
+    ],
+    ids=["run long --out", "render long --out", "sim long --json", "sim --plot xyz"],
+)
+def test_bad_paths_are_one_line(argv: list[str], words: list[str], tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and all(w in lines[0] for w in words), lines
+    assert list(tmp_path.iterdir()) == []  # nothing half-written
