@@ -30,11 +30,31 @@ def build_engine(args: argparse.Namespace):  # noqa: ANN201
     return build(args, headless=False)
 
 
+def check_bindable(host: str, port: int) -> None:
+    """UsageError (one line) unless `host` resolves and `port` can be bound there (0: any
+    free port). The socket is closed again at once."""
+    import socket
+
+    from app.cli import UsageError
+
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    except (socket.gaierror, UnicodeError) as e:
+        raise UsageError(f"--host {host}: not an address of this machine ({getattr(e, 'strerror', None) or e})") from None
+    with socket.socket(family, kind, proto) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(address)
+        except OSError as e:
+            raise UsageError(f"cannot serve on {host}:{port}: {e.strerror or e}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from app.cli import UsageError
 
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port {args.port}: not a port number")
+    check_bindable(args.host, args.port)  # the server binds in a thread of its own, where a failure would go unseen
     engine = build_engine(args)
     from viewer.app import Debugger, ViewerSettings
 

@@ -59,6 +59,10 @@ BAD_INPUT = {
     "port-text": (["--port", "http"], ["--port", "http"]),
     "variant": (["--variant", "P-x"], ["--variant", "P-x"]),
     "unknown-option": (["--scenes", "mc-a"], ["--scenes"]),
+    "seed-negative": (["--scene", "mc-a", "--seed", "-3"], ["--seed", "-3 is not a seed"]),
+    "host-invalid": (["--scene", "mc-a", "--host", "999.1.1.1"], ["--host 999.1.1.1", "not an address of this machine"]),
+    "host-unresolvable": (["--scene", "mc-a", "--host", "no-such-host.invalid"], ["--host no-such-host.invalid"]),
+    "host-foreign": (["--scene", "mc-a", "--host", "192.0.2.1"], ["cannot serve on 192.0.2.1", "Cannot assign requested address"]),
 }
 
 
@@ -143,3 +147,17 @@ def test_console_script_reports_bad_scene(tmp_path: pathlib.Path) -> None:
     assert proc.returncode == 2
     assert proc.stdout == ""
     _assert_one_error_line(proc.stderr, ["--scene", "nope"])
+
+
+def test_a_port_in_use_is_one_line_at_once(capsys: pytest.CaptureFixture[str]) -> None:
+    """The server binds in a thread of its own: a port in use is checked before, one line."""
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        rc = cli.main(["serve", "--scene", "mc-a", "--port", str(port)])
+    out, err = capsys.readouterr()
+    assert rc == 2 and out == ""
+    _assert_one_error_line(err, [f"cannot serve on 127.0.0.1:{port}", "Address already in use"])
