@@ -28,6 +28,8 @@ from backend.data.textures import DEFAULT_TEXEL_M, KINDS, texture_shape
 SCENE_NAMES = ("room", "corridor", "boxes")
 DEFAULT_SCENE = "room"
 _MAX_PLANE_ID = 32766  # plane masks are int16
+MAX_COORDINATE_M = 1e5  # scene coordinates (m): beyond, float32 rendering loses the centimetre
+MAX_EXTENT_M = 1e4  # sizes and radii (m)
 
 
 class SceneFileError(ValueError):
@@ -161,14 +163,22 @@ def _validate(scene: Scene) -> None:
                 raise ValueError(f"{where}: plane_id {rect.plane_id} is shared with rectangles[{first}] but the two are not coplanar (same side)")
         else:
             planes[rect.plane_id] = (i, plane)
+        if np.max(np.abs(rect.p0)) > MAX_COORDINATE_M or max(rect.size) > MAX_EXTENT_M:
+            raise ValueError(f"{where}: coordinates within ±{MAX_COORDINATE_M:g} m and sizes up to {MAX_EXTENT_M:g} m")
     for i, sphere in enumerate(scene.spheres):
-        if sphere.centre.shape != (3,) or not np.all(np.isfinite(sphere.centre)) or not sphere.radius > 0:
-            raise ValueError(f"spheres[{i}]: expected a finite centre (3 numbers) and a positive radius")
+        if sphere.centre.shape != (3,) or not np.all(np.abs(sphere.centre) <= MAX_COORDINATE_M) or not 0 < sphere.radius <= MAX_EXTENT_M:
+            raise ValueError(f"spheres[{i}]: expected a finite centre (3 numbers, within ±{MAX_COORDINATE_M:g} m) and a radius in (0, {MAX_EXTENT_M:g}] m")
     for i, cyl in enumerate(scene.cylinders):
-        if cyl.centre_xy.shape != (2,) or not np.all(np.isfinite(cyl.centre_xy)) or not cyl.radius > 0:
-            raise ValueError(f"cylinders[{i}]: expected a finite centre_xy (2 numbers) and a positive radius")
-        if not (len(cyl.z_range) == 2 and cyl.z_range[0] < cyl.z_range[1]):
-            raise ValueError(f"cylinders[{i}].z_range: expected [z0, z1] with z0 < z1")
+        if cyl.centre_xy.shape != (2,) or not np.all(np.abs(cyl.centre_xy) <= MAX_COORDINATE_M) or not 0 < cyl.radius <= MAX_EXTENT_M:
+            raise ValueError(f"cylinders[{i}]: expected a finite centre_xy (2 numbers, within ±{MAX_COORDINATE_M:g} m) and a radius in (0, {MAX_EXTENT_M:g}] m")
+        if not (len(cyl.z_range) == 2 and np.all(np.abs(cyl.z_range) <= MAX_COORDINATE_M) and cyl.z_range[0] < cyl.z_range[1]):
+            raise ValueError(f"cylinders[{i}].z_range: expected finite [z0, z1] with z0 < z1")
+    if scene.camera_region is not None:
+        centre, half = (np.asarray(v, dtype=float) for v in scene.camera_region)
+        if centre.shape != (3,) or not np.all(np.abs(centre) <= MAX_COORDINATE_M):
+            raise ValueError(f"camera_region.centre: expected 3 finite numbers within ±{MAX_COORDINATE_M:g} m")
+        if half.shape != (3,) or not np.all((half >= 0) & (half <= MAX_EXTENT_M)):
+            raise ValueError(f"camera_region.half_extent: expected 3 numbers in [0, {MAX_EXTENT_M:g}] m")
 
 
 # ----------------------------------------------------------------------------- builders
@@ -455,6 +465,8 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         data = json.loads(text)
     except json.JSONDecodeError as error:
         raise SceneFileError(path, f"invalid JSON at line {error.lineno} column {error.colno}: {error.msg}") from None
+    except RecursionError:
+        raise SceneFileError(path, "invalid scene: JSON nested too deeply") from None
     try:
         return scene_from_dict(data)
     except ValueError as error:

@@ -52,3 +52,45 @@ def test_bad_paths_are_one_line(argv: list[str], words: list[str], tmp_path: pat
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and all(w in lines[0] for w in words), lines
     assert list(tmp_path.iterdir()) == []  # nothing half-written
+
+
+def _scene_text(change) -> str:  # noqa: ANN001
+    import json
+
+    from backend.data.scenes import builtin_scene, scene_to_dict
+
+    data = scene_to_dict(builtin_scene("room"))
+    change(data)
+    return json.dumps(data)
+
+
+def _set(path: tuple, value: object):  # noqa: ANN202
+    def change(data: dict) -> None:
+        target = data
+        for key in path[:-1]:
+            target = target[key]
+        target[path[-1]] = value
+
+    return change
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        (_scene_text(_set(("camera_region", "centre"), [float("inf"), 0.0, 1.0])), ["camera_region.centre", "finite"]),
+        (_scene_text(_set(("camera_region", "half_extent"), [float("nan"), 1.0, 1.0])), ["camera_region.half_extent"]),
+        (_scene_text(_set(("cylinders", 0, "radius"), 1e300)), ["cylinders[0]", "radius in (0, 10000] m"]),
+        (_scene_text(_set(("spheres", 0, "radius"), float("inf"))), ["spheres[0]", "radius"]),
+        ("[" * 100_000 + "]" * 100_000, ["nested too deeply"]),
+    ],
+    ids=["region-inf", "region-nan", "cylinder-huge", "sphere-inf", "deeply-nested"],
+)
+def test_bad_scene_files_are_one_line(text: str, words: list[str], tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scene = tmp_path / "scene.json"
+    scene.write_text(text)
+    out = tmp_path / "out"
+    assert cli.main(["run", "--scene", str(scene), "--variant", "PL-w", "--duration", "0.5", "--out", str(out)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    assert all(w in lines[0] for w in [str(scene), *words]), lines
+    assert not out.exists()
