@@ -34,6 +34,7 @@ from backend.geometry.camera import PinholeCamera
 
 RADIAL_TANGENTIAL = ("radial-tangential", "radtan", "plumb_bob")  # accepted `distortion_model` names
 ROTATION_TOLERANCE = 1e-3  # max |RᵀR - I| of a T_BS before it is rejected as not a rotation
+MAX_RESOLUTION_PX = 16384  # per side: larger would not fit the rectification maps in memory
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -173,6 +174,8 @@ def read_camera_yaml(path: pathlib.Path | str) -> CameraCalibration:
     resolution = yaml.numbers("resolution", (2,))
     if np.any(resolution < 1) or np.any(resolution != np.round(resolution)):
         raise DatasetError(path, "'resolution' must be two positive integers [width, height]")
+    if np.any(resolution > MAX_RESOLUTION_PX):
+        raise DatasetError(path, f"'resolution' {int(resolution[0])}x{int(resolution[1])} is larger than {MAX_RESOLUTION_PX} pixels per side")
     model = yaml.text("camera_model")
     if model != "pinhole":
         raise DatasetError(path, f"camera_model '{model}' is not supported (only pinhole)")

@@ -86,3 +86,18 @@ def test_missing_stereo_image_names_the_list_and_line(rendered: pathlib.Path, tm
     assert rc == 2
     _one_error_line(err, [f"{root / 'mav0' / 'cam1' / 'data.csv'} line 6:", victim.name, "listed but absent"])
     assert not out.exists()
+
+
+def test_a_huge_resolution_is_one_line(rendered: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    """A sensor.yaml with a huge `resolution` no longer runs out of memory building the
+    rectification maps: one line naming the file."""
+    root = tmp_path / "seq"
+    shutil.copytree(rendered, root)
+    for cam in ("cam0", "cam1"):
+        yaml = root / "mav0" / cam / "sensor.yaml"
+        yaml.write_text("\n".join("resolution: [752000000, 480000000]" if line.startswith("resolution:") else line for line in yaml.read_text().splitlines()) + "\n")
+    out = tmp_path / "out"
+    rc, _, err = _run(["--dataset", str(root), "--variant", "PL-w", "--out", str(out)])
+    assert rc == 2
+    _one_error_line(err, [str(root / "mav0" / "cam0" / "sensor.yaml"), "larger than 16384 pixels per side"])
+    assert not out.exists()
