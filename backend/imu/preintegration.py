@@ -141,7 +141,7 @@ def preintegrate(
         raise ValueError(f"IMU timestamps do not increase at sample {k} ({stamps[k]} ns)")
     if np.any(spans > max_gap_ns):
         k = int(np.flatnonzero(spans > max_gap_ns)[0])
-        raise ValueError(f"IMU samples do not cover [{t0_ns}, {t1_ns}] ns: sample at {begins[k]} ns holds for {spans[k] * 1e-6:.3f} ms > max_gap_ns {max_gap_ns * 1e-6:.3f} ms")
+        raise ValueError(f"IMU samples do not cover [{t0_ns}, {t1_ns}] ns: sample at {begins[k]} ns holds for {spans[k] * 1e-6:.3f} ms, more than the {max_gap_ns * 1e-6:.3f} ms allowed between IMU samples")
     dt_s = (np.minimum(ends, t1_ns) - np.maximum(begins, t0_ns)) * 1e-9
     pim = gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias(np.asarray(bias_accel, dtype=float), np.asarray(bias_gyro, dtype=float)))
     accel = imu.accel[first : last + 1]

@@ -310,21 +310,9 @@ class StereoEngine:
         timing = {"point_dm": 0.0, "tracking": 0.0}
         frames = lost = reinitializations = 0
         messages = self._messages = []
-        n = len(self.data_source)
         while True:
-            if self._next_frame >= n:
-                raise EndOfSequence(f"{self._name}: all {n} frames processed")
-            i = self._next_frame
-            self._next_frame += 1
-            t0 = time.perf_counter()
-            left, right = self.data_source.rectified_pair(i)
-            timing["load"] = timing.get("load", 0.0) + 1e3 * (time.perf_counter() - t0)
+            i, left, right, kp = self._read_frame(timing)
             frames += 1
-            if self.on_frame is not None:
-                self.on_frame(i)
-            t0 = time.perf_counter()
-            kp = detect_points(left, settings=s.points)
-            timing["point_dm"] += 1e3 * (time.perf_counter() - t0)
             t0 = time.perf_counter()
             if self.keyframes == 0:
                 R, t = self._initial_pose(i)
@@ -352,6 +340,24 @@ class StereoEngine:
                 break
             self._record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
         return self._keyframe(i, left, right, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, message="; ".join(messages), reason=reason)
+
+    def _read_frame(self, timing: dict[str, float]) -> tuple[int, np.ndarray, np.ndarray, Keypoints]:
+        """The next frame: its index, rectified pair and left ORB keypoints (reading and
+        detection times added to `timing`'s "load" and "point_dm"). Raises EndOfSequence."""
+        n = len(self.data_source)
+        if self._next_frame >= n:
+            raise EndOfSequence(f"{self._name}: all {n} frames processed")
+        i = self._next_frame
+        self._next_frame += 1
+        t0 = time.perf_counter()
+        left, right = self.data_source.rectified_pair(i)
+        timing["load"] = timing.get("load", 0.0) + 1e3 * (time.perf_counter() - t0)
+        if self.on_frame is not None:
+            self.on_frame(i)
+        t0 = time.perf_counter()
+        kp = detect_points(left, settings=self.settings.points)
+        timing["point_dm"] += 1e3 * (time.perf_counter() - t0)
+        return i, left, right, kp
 
     def reoptimize(self) -> Snapshot:
         if self._last is None:

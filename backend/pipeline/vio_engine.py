@@ -46,7 +46,7 @@ import numpy as np
 
 from backend.data.motion import ImuData, ImuNoise
 from backend.frontend.lines import Segments, detect_segments, match_segments_temporal
-from backend.frontend.points import Keypoints, best_matches, detect_points, pair_hamming
+from backend.frontend.points import Keypoints, best_matches, pair_hamming
 from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
 from backend.geometry import line as line_geo
 from backend.geometry import so3
@@ -55,7 +55,7 @@ from backend.mapping.triangulation import triangulate_lines, triangulate_two_vie
 from backend.optim import inertial
 from backend.optim.marginalization import marginalize, remap
 from backend.optim.problem import DistancePrior, ProblemData, parse_variant
-from backend.pipeline.engine import EndOfSequence, checkpoint_of
+from backend.pipeline.engine import checkpoint_of
 from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
 from backend.pipeline.stereo_engine import (
     POINT_NEW,
@@ -176,22 +176,10 @@ class VioEngine(StereoEngine):
         timing = {"point_dm": 0.0, "tracking": 0.0}
         frames = lost = reinitializations = 0
         messages = self._messages = []
-        n = len(self.data_source)
         bootstrap = None
         while True:
-            if self._next_frame >= n:
-                raise EndOfSequence(f"{self._name}: all {n} frames processed")
-            i = self._next_frame
-            self._next_frame += 1
-            t0 = time.perf_counter()
-            left, _ = self.data_source.rectified_pair(i)
-            timing["load"] = timing.get("load", 0.0) + 1e3 * (time.perf_counter() - t0)
+            i, left, _, kp = self._read_frame(timing)
             frames += 1
-            if self.on_frame is not None:
-                self.on_frame(i)
-            t0 = time.perf_counter()
-            kp = detect_points(left, settings=s.points)
-            timing["point_dm"] += 1e3 * (time.perf_counter() - t0)
             t0 = time.perf_counter()
             if self.keyframes == self._segment_start:
                 R, t = self._initial_pose(i)
@@ -386,11 +374,9 @@ class VioEngine(StereoEngine):
         o = self._obs[k]
         ids = self._local_points[tracked.match >= 0]
         uv_now = kp.uv[tracked.match[tracked.match >= 0]]
-        pos = {int(p): j for j, p in enumerate(o.point_id)}
-        pairs = [(pos[int(p)], j) for j, p in enumerate(ids) if int(p) in pos]
-        if not pairs:
+        _, a, b = np.intersect1d(o.point_id, ids, assume_unique=True, return_indices=True)  # a point is observed once per keyframe
+        if len(a) == 0:
             return "few tracked"
-        a, b = np.array(pairs).T
         R_rel = tracked.R.T @ self._R_est[k]  # keyframe camera -> frame camera
         x = self.camera.normalize(o.point_uv[a]) @ R_rel.T
         with np.errstate(divide="ignore", invalid="ignore"):

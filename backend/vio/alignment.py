@@ -79,6 +79,7 @@ import scipy.linalg
 
 from backend.data.motion import ImuData, ImuNoise
 from backend.geometry import so3
+from backend.imu.preintegration import preintegrate, preintegration_params
 
 GRAVITY_MAGNITUDE = 9.81  # m/s², backend.data.motion.GRAVITY_WORLD's norm
 _BIAS_STEP = 1e-4  # rad/s, central-difference step for the rotation's gyro-bias Jacobian
@@ -189,43 +190,21 @@ class _ImuGap(Exception):
 
 
 def _imu_params(noise: ImuNoise) -> gtsam.PreintegrationParams:
-    """gtsam parameters, world z up with 9.81 m/s² gravity; continuous-time covariances
-    (the densities squared, as gtsam expects)."""
-    params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY_MAGNITUDE)
-    params.setGyroscopeCovariance(np.eye(3) * noise.gyroscope_noise_density**2)
-    params.setAccelerometerCovariance(np.eye(3) * noise.accelerometer_noise_density**2)
-    params.setIntegrationCovariance(np.eye(3) * 1e-8)
-    return params
+    """gtsam parameters, world z up with 9.81 m/s² gravity, the densities of `noise` and an
+    integration covariance of 1e-8 m²/s (`backend.imu.preintegration.preintegration_params`)."""
+    return preintegration_params(noise, gravity_m_s2=GRAVITY_MAGNITUDE, integration_covariance_m2_s=1e-8)
 
 
 def _preintegrate(imu: ImuData, t0_ns: int, t1_ns: int, *, params: gtsam.PreintegrationParams, bias_gyro: np.ndarray) -> gtsam.PreintegratedImuMeasurements:
-    """Preintegrate the samples over [t0_ns, t1_ns] at gyro bias `bias_gyro` (accelerometer
-    bias zero). Sample k holds over [t_k, t_{k+1}]: the sample covering t0 starts the
-    interval (clipped to t0), the last one is clipped to t1; the last sample of `imu` is held
-    for one median period. Raises _ImuGap when the samples do not cover the interval or
-    when two consecutive samples inside it are more than `_MAX_GAP_PERIODS` periods apart."""
+    """Preintegrate over [t0_ns, t1_ns] at gyro bias `bias_gyro` (accelerometer bias zero)
+    with `backend.imu.preintegration.preintegrate`; a sample holding for more than
+    `_MAX_GAP_PERIODS` median periods, or samples not covering the interval, raise _ImuGap."""
     stamps = imu.timestamp_ns
-    n = len(imu)
-    first = int(np.searchsorted(stamps, t0_ns, side="right")) - 1
-    if n == 0 or first < 0:
-        raise _ImuGap(f"no IMU sample at or before {t0_ns} ns")
-    period_ns = int(np.median(np.diff(stamps))) if n > 1 else 0
-    bias = gtsam.imuBias.ConstantBias(np.zeros(3), np.asarray(bias_gyro, dtype=float))
-    pim = gtsam.PreintegratedImuMeasurements(params, bias)
-    reached = int(t0_ns)
-    k = first
-    while k < n and stamps[k] < t1_ns:
-        next_ns = int(stamps[k + 1]) if k + 1 < n else int(stamps[k]) + period_ns
-        if next_ns - int(stamps[k]) > _MAX_GAP_PERIODS * period_ns:
-            raise _ImuGap(f"{(next_ns - int(stamps[k])) * 1e-6:.1f} ms between IMU samples at {int(stamps[k])} ns")
-        start, end = max(int(stamps[k]), int(t0_ns)), min(next_ns, int(t1_ns))
-        if end > start:
-            pim.integrateMeasurement(imu.accel[k], imu.gyro[k], (end - start) * 1e-9)
-            reached = end
-        k += 1
-    if reached < t1_ns:
-        raise _ImuGap(f"IMU samples end before {t1_ns} ns")
-    return pim
+    period_ns = int(np.median(np.diff(stamps))) if len(stamps) > 1 else 0
+    try:
+        return preintegrate(imu, int(t0_ns), int(t1_ns), bias_accel=np.zeros(3), bias_gyro=np.asarray(bias_gyro, dtype=float), params=params, max_gap_ns=_MAX_GAP_PERIODS * period_ns)
+    except ValueError as error:
+        raise _ImuGap(str(error)) from None
 
 
 def _rotation_jacobian_bias_gyro(pim: gtsam.PreintegratedImuMeasurements) -> np.ndarray:

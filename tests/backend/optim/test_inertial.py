@@ -17,6 +17,7 @@ from backend.optim import inertial
 from backend.optim.marginalization import marginalize, remap
 from backend.optim.problem import Observations, ProblemData, build_problem
 from backend.optim.solver import optimize
+from tests.backend.optim.test_jacobians import _numeric_jacobian
 
 MONO = PinholeCamera(fx=CAMERA.fx, fy=CAMERA.fy, cx=CAMERA.cx, cy=CAMERA.cy, width=CAMERA.width, height=CAMERA.height)
 KEYFRAME_NS = 100_000_000  # 10 Hz
@@ -84,18 +85,6 @@ def _pose_prior(R: np.ndarray, t: np.ndarray, v: np.ndarray, sigma: float = 1e-3
         R=R[None].copy(), t=t[None].copy(), inertial=np.r_[v, np.zeros(6)][None], plane_n=np.zeros((0, 3)), plane_d=np.zeros(0),
         A=A, b=np.zeros(15),
     )
-
-
-def _numeric_jacobian(problem, state, eps: float = 1e-6) -> np.ndarray:  # noqa: ANN001
-    n = problem.layout.n_params
-    cols = []
-    for c in range(n):
-        d = np.zeros(n)
-        d[c] = eps
-        rp = problem.linearize(problem.retract(state, d)).residual
-        rm = problem.linearize(problem.retract(state, -d)).residual
-        cols.append((rp - rm) / (2 * eps))
-    return np.stack(cols, axis=1)
 
 
 @pytest.mark.parametrize("variant", ["P-wo", "P-w", "P-r"])
