@@ -9,6 +9,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import signal  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
@@ -36,8 +37,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupt(_number: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _interrupt)  # `kill PID` ends a command like Ctrl-C: no half-written files
     try:
         args = parser.parse_args(argv)
         return int(args.run(args) or 0)
@@ -48,14 +55,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         from backend.data.errors import DatasetError
         from backend.export.map_files import MissingLibraryError
 
-        if not isinstance(e, (DatasetError, MissingLibraryError)):
+        if isinstance(e, (DatasetError, MissingLibraryError)):
+            print(f"error: {e}", file=sys.stderr)
+        elif isinstance(e, OSError):  # the environment (a full disk, a folder that went away): one line naming the file
+            print(f"error: {e.filename}: {e.strerror}" if e.filename and e.strerror else f"error: {e}", file=sys.stderr)
+        else:
             raise
-        print(f"error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        print(f"interrupted: {e}" if str(e) else "interrupted", file=sys.stderr)
         return 130
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # `python -m app.cli`: run the imported module, whose UsageError the commands raise
+    from app.cli import main as _main
+
+    sys.exit(_main())

@@ -1,4 +1,7 @@
-"""`coplanar render`: a synthetic stereo + IMU sequence as an EuRoC ASL folder (DESIGN §7)."""
+"""`coplanar render`: a synthetic stereo + IMU sequence as an EuRoC ASL folder (DESIGN §7).
+
+The sequence is rendered into a hidden staging folder inside `--out` and its `mav0` folder
+moved into place when complete: a full disk or Ctrl-C leaves no partial `mav0` behind."""
 
 from __future__ import annotations
 
@@ -45,11 +48,24 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise UsageError(f"--out {out}: cannot create it: {e.strerror or e}") from None
-    with tqdm(total=None, desc=f"render {scene.name}", unit="pair", file=sys.stderr, disable=None) as bar:
-        def on_frame(done: int, total: int) -> None:
-            bar.total = total
-            bar.update(1)
+    from backend.export.atomic import InterruptedAfterCommit, staged_folder
 
-        n = render_sequence(scene, out, settings=settings, on_frame=on_frame)
+    stage = None
+    try:
+        with staged_folder(out) as stage, tqdm(total=None, desc=f"render {scene.name}", unit="pair", file=sys.stderr, disable=None) as bar:
+            def on_frame(done: int, total: int) -> None:
+                bar.total = total
+                bar.update(1)
+
+            n = render_sequence(scene, stage, settings=settings, on_frame=on_frame)
+    except OSError as e:
+        where = "the sequence"
+        if e.filename and stage is not None and str(e.filename).startswith(str(stage)):
+            where = str(pathlib.Path(e.filename).relative_to(stage))
+        raise UsageError(f"--out {out}: cannot write {where}: {e.strerror or e}; no mav0 folder was left there") from None
+    except InterruptedAfterCommit:
+        raise
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(f"no mav0 folder was left in {out}") from None
     print(f"rendered {n} stereo pairs of {scene.name} ({args.duration:g} s) into {out}; read it back with --dataset {out}")
     return 0

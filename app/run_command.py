@@ -17,6 +17,11 @@ Outputs in `--out DIR`:
   `map.ply`, and the map as the usual 3D tools read it (`backend.export.map_files`):
   `points.ply` (point cloud), `lines.ply` (line set), `planes.ply` (triangle mesh with
   `plane_id`), `cameras.ply` (keyframe frustums).
+
+The files are written into a hidden staging folder inside `--out` and moved into place only
+when all are written (`backend.export.atomic`): a full disk, an error or Ctrl-C / SIGTERM
+during the run leaves `--out` as it was (an earlier run's files there stay whole), and the
+command says so.
 """
 
 from __future__ import annotations
@@ -125,6 +130,26 @@ def trajectory_metrics(estimate, ground_truth) -> tuple[dict, object]:  # noqa: 
     return metrics, Trajectory.of(stamp, R_gt, p_gt)
 
 
+def _write_staged(out: pathlib.Path, write) -> None:  # noqa: ANN001
+    """`write(folder)` into a staging folder inside `out`, moved into `out` when it returns;
+    a failed write (a full disk) is one line naming the file, and nothing is moved."""
+    from app.cli import UsageError
+    from backend.export.atomic import staged_folder
+
+    stage = None
+    try:
+        with staged_folder(out) as stage:
+            write(stage)
+    except OSError as e:
+        if e.filename:
+            detail = f"{pathlib.Path(e.filename).name}: {e.strerror or e}"
+        elif e.strerror:
+            detail = f"the outputs: {e.strerror}"
+        else:
+            detail = str(e).replace(f"{stage}/", "") if stage is not None else str(e)
+        raise UsageError(f"--out {out}: cannot write {detail}; nothing was written there") from None
+
+
 def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, groundtruth) -> None:  # noqa: ANN001
     """trajectory.txt (`frames`: every tracked frame), keyframes.txt, groundtruth.txt,
     metrics.json, the combined map.ply and the typed points.ply, lines.ply, planes.ply and
@@ -166,10 +191,18 @@ def run(args: argparse.Namespace) -> int:
 
         require_open3d()  # before the run: a missing library is one line, not a lost run
 
+    from backend.export.atomic import InterruptedAfterCommit
+
     engine = build_engine(args, headless=True)
-    if isinstance(engine, SimEngine):
-        return _run_simulation(args, engine)
-    return _run_stereo(args, engine)
+    try:
+        if isinstance(engine, SimEngine):
+            return _run_simulation(args, engine)
+        return _run_stereo(args, engine)
+    except InterruptedAfterCommit:
+        raise
+    except KeyboardInterrupt:
+        earlier = args.out.is_dir() and any(not p.name.startswith(".") for p in args.out.iterdir())
+        raise KeyboardInterrupt(f"nothing written to {args.out}" + ("; the files already there are as they were" if earlier else "")) from None
 
 
 def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
@@ -220,7 +253,7 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
             "all_stages": mean,
         },
     }
-    _write_outputs(args.out, snapshot, metrics, frames=snapshot.estimate, groundtruth=evaluated)
+    _write_staged(args.out, lambda folder: _write_outputs(folder, snapshot, metrics, frames=snapshot.estimate, groundtruth=evaluated))
     print(f"{n} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned), RMSE {_cm(metrics['rmse_cm'])}, "
           f"{len(snapshot.planes)} planes; {mean['total']:.1f} ms per keyframe; "
           f"wrote {args.out}/trajectory.txt (keyframes), keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply")
@@ -268,8 +301,12 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
     fusion = fuse_keyframes(source, frames, np.asarray(snapshot.estimate.R_world_camera), t, map_bounds(snapshot.points.p_world, t))
     mesh = fusion.mesh()
     o3d = fusion._o3d
-    if not o3d.io.write_triangle_mesh(str(path), mesh):
-        raise OSError(f"{path}: open3d could not write the mesh")
+    from backend.export.atomic import atomic_path
+    from backend.export.map_files import native_stderr_silenced
+
+    with atomic_path(path) as tmp, native_stderr_silenced():
+        if not o3d.io.write_triangle_mesh(str(tmp), mesh):
+            raise OSError(f"{path}: open3d could not write the mesh (disk full?)")
     out = {
         "keyframes_fused": fusion.keyframes, "fusion_ms_per_keyframe": fusion.time_ms / max(fusion.keyframes, 1),
         "voxel_m": fusion.voxel_m, "vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
@@ -398,9 +435,13 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
     if snapshot.imu is not None:
         metrics["mode"] = "vio"
         metrics["vio"] = vio_metrics(snapshot, frames)
-    if getattr(args, "dense", False):
-        metrics["dense"] = dense_mesh(engine.data_source, snapshot, args.out / "mesh.ply")
-    _write_outputs(args.out, snapshot, metrics, frames=frames.estimate, groundtruth=evaluated)
+
+    def write(folder: pathlib.Path) -> None:
+        if getattr(args, "dense", False):
+            metrics["dense"] = dense_mesh(engine.data_source, snapshot, folder / "mesh.ply")
+        _write_outputs(folder, snapshot, metrics, frames=frames.estimate, groundtruth=evaluated)
+
+    _write_staged(args.out, write)
     per_frame = metrics["timing_ms"]["total_per_frame"]
     print(f"{engine.frames} frames, {metrics['keyframes']} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned, "
           f"{metrics['frames_evaluated']} frames), RMSE {_cm(metrics['rmse_cm'])}, {len(snapshot.planes)} planes, {lost} lost frames, "

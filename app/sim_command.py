@@ -139,7 +139,10 @@ def run(args: argparse.Namespace) -> int:
         for v in variants:
             structure = hessian_structure(build_problem(data, v))
             path = args.hessian_dir / f"hessian_{args.sequence}_{v}.png"
-            structure.write_png(path)
+            try:
+                structure.write_png(path)
+            except OSError as e:
+                raise UsageError(f"--hessian-dir {args.hessian_dir}: cannot write {path.name}: {e.strerror or e}") from None
             print(f"wrote {path} ({structure.items} items, {structure.params} params, {structure.nnz} nonzeros)", file=sys.stderr)
 
     from tqdm import tqdm
@@ -155,8 +158,18 @@ def run(args: argparse.Namespace) -> int:
         "machine": {"python": platform.python_version(), "processor": platform.machine(), "cpus": _cpu_count()},
         "variants": {name: s.to_json() for name, s in summary.items()},
     }
-    args.json.write_text(json.dumps(payload, indent=2) + "\n")
-    write_plot(plot_path, args.sequence, args.runs, results, variants)
+    from backend.export.atomic import atomic_path
+
+    option = "--json"
+    try:  # both files complete, or neither (the plot is moved into place first)
+        with atomic_path(args.json) as json_tmp:
+            json_tmp.write_text(json.dumps(payload, indent=2) + "\n")
+            option = "--plot"
+            with atomic_path(plot_path) as plot_tmp:
+                write_plot(plot_tmp, args.sequence, args.runs, results, variants)
+    except OSError as e:
+        path = args.json if option == "--json" else plot_path
+        raise UsageError(f"cannot write {option} {path}: {e.strerror or e}; neither file was written") from None
     print(format_table(args.sequence, args.runs, summary))
     print(f"wrote {args.json} and {plot_path}", file=sys.stderr)
     return 0

@@ -17,14 +17,18 @@ system library (Debian's `libusb-1.0-0`) is a one-line :class:`MissingLibraryErr
 
 from __future__ import annotations
 
+import contextlib
 import io
+import os
 import pathlib
+import sys
 import tempfile
 import zipfile
 
 import numpy as np
 from plyfile import PlyData, PlyElement
 
+from backend.export.atomic import atomic_path, write_bytes_atomic
 from backend.export.palette import plane_color
 from backend.export.ply import snapshot_ply_bytes
 from backend.pipeline.snapshot import Snapshot
@@ -115,23 +119,48 @@ def planes_ply_bytes(snapshot: Snapshot) -> bytes:
     return buffer.getvalue()
 
 
+@contextlib.contextmanager
+def native_stderr_silenced():  # noqa: ANN202
+    """open3d's PLY writer (RPly) prints one line per failed element to the process's
+    stderr on a full disk; its False return is what reports the failure (one line)."""
+    try:
+        fd = sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):  # stderr redirected in-process: nothing native to silence
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+        yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+        os.close(devnull)
+
+
 def write_map_files(snapshot: Snapshot, directory: pathlib.Path | str) -> list[pathlib.Path]:
-    """Write the combined map and the four typed files (:data:`MAP_FILES`) into `directory`;
-    returns their paths."""
+    """Write the combined map and the four typed files (:data:`MAP_FILES`) into `directory`
+    (each complete or not at all); returns their paths."""
     o3d = require_open3d()
     out = pathlib.Path(directory)
     paths = [out / name for name in MAP_FILES]
-    paths[0].write_bytes(snapshot_ply_bytes(snapshot))
+    write_bytes_atomic(paths[0], snapshot_ply_bytes(snapshot))
     if len(snapshot.points) == 0:  # open3d refuses to write empty geometry: the same elements, no rows
-        paths[1].write_bytes(_empty_ply(("vertex", [("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("plane_id", "i4")])))
-    elif not o3d.t.io.write_point_cloud(str(paths[1]), point_cloud(snapshot)):
-        raise OSError(f"{paths[1]}: open3d could not write the point cloud")
+        write_bytes_atomic(paths[1], _empty_ply(("vertex", [("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("plane_id", "i4")])))
+    else:
+        with atomic_path(paths[1]) as tmp, native_stderr_silenced():
+            if not o3d.t.io.write_point_cloud(str(tmp), point_cloud(snapshot)):
+                raise OSError(f"{paths[1]}: open3d could not write the point cloud (disk full?)")
     for path, count, geometry in ((paths[2], len(snapshot.lines), line_set), (paths[4], len(snapshot.estimate), camera_frustums)):
         if count == 0:
-            path.write_bytes(_empty_ply(("vertex", [("x", "f8"), ("y", "f8"), ("z", "f8")]), ("edge", [("vertex1", "i4"), ("vertex2", "i4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])))
-        elif not o3d.io.write_line_set(str(path), geometry(snapshot)):
-            raise OSError(f"{path}: open3d could not write the line set")
-    paths[3].write_bytes(planes_ply_bytes(snapshot))
+            write_bytes_atomic(path, _empty_ply(("vertex", [("x", "f8"), ("y", "f8"), ("z", "f8")]), ("edge", [("vertex1", "i4"), ("vertex2", "i4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])))
+        else:
+            with atomic_path(path) as tmp, native_stderr_silenced():
+                if not o3d.io.write_line_set(str(tmp), geometry(snapshot)):
+                    raise OSError(f"{path}: open3d could not write the line set (disk full?)")
+    write_bytes_atomic(paths[3], planes_ply_bytes(snapshot))
     return paths
 
 

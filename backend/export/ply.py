@@ -59,8 +59,10 @@ def snapshot_ply_bytes(snapshot: Snapshot) -> bytes:
 
 
 def write_ply(path: pathlib.Path | str, snapshot: Snapshot) -> None:
-    """Write :func:`snapshot_ply_bytes` to `path`."""
-    pathlib.Path(path).write_bytes(snapshot_ply_bytes(snapshot))
+    """Write :func:`snapshot_ply_bytes` to `path` (complete or not at all)."""
+    from backend.export.atomic import write_bytes_atomic
+
+    write_bytes_atomic(path, snapshot_ply_bytes(snapshot))
 
 
 def _ascii(text: str) -> str:

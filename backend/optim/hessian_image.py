@@ -365,9 +365,11 @@ def write_hessian_png(
     legend: bool = True,
     title: str | None = None,
 ) -> None:
-    """Write `render_hessian(...)` as a PNG file at `path` (parent directory must exist)."""
-    data = hessian_png_bytes(pattern, groups, max_px=max_px, legend=legend, title=title)
-    pathlib.Path(path).write_bytes(data)
+    """Write `render_hessian(...)` as a PNG file at `path` (parent directory must exist;
+    complete or not at all)."""
+    from backend.export.atomic import write_bytes_atomic
+
+    write_bytes_atomic(path, hessian_png_bytes(pattern, groups, max_px=max_px, legend=legend, title=title))
 
 
 def render_side_by_side(images: Sequence[Image.Image], *, labels: Sequence[str], font_px: int = 16) -> Image.Image:
