@@ -37,6 +37,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(text: object) -> str:
+    """`text` as one printable line: control characters, line and paragraph separators
+    and undecodable bytes of file names (surrogates) escaped as Python writes them."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))
+
+
 def _interrupt(_number: int, _frame: object) -> None:
     raise KeyboardInterrupt
 
@@ -49,21 +55,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
         return int(args.run(args) or 0)
     except UsageError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {one_line(e)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as e:  # a dataset problem the user can fix: one line, no traceback
         from backend.data.errors import DatasetError
         from backend.export.map_files import MissingLibraryError
 
         if isinstance(e, (DatasetError, MissingLibraryError)):
-            print(f"error: {e}", file=sys.stderr)
+            print(f"error: {one_line(e)}", file=sys.stderr)
+        elif isinstance(e, ValueError) and "null" in str(e) and ("byte" in str(e) or "character" in str(e)):
+            print("error: a file name or address with a NUL character", file=sys.stderr)
         elif isinstance(e, OSError):  # the environment (a full disk, a folder that went away): one line naming the file
-            print(f"error: {e.filename}: {e.strerror}" if e.filename and e.strerror else f"error: {e}", file=sys.stderr)
+            print(one_line(f"error: {e.filename}: {e.strerror}" if e.filename and e.strerror else f"error: {e}"), file=sys.stderr)
         else:
             raise
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as e:
-        print(f"interrupted: {e}" if str(e) else "interrupted", file=sys.stderr)
+        print(one_line(f"interrupted: {e}") if str(e) else "interrupted", file=sys.stderr)
         return 130
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import pathlib
 
 MAX_SEED = 2**63 - 1
 
@@ -35,3 +36,18 @@ def bounded_float(*, low: float, high: float, low_open: bool = False, unit: str 
         return value
 
     return parse
+
+
+def path(text: str) -> pathlib.Path:
+    """A file or folder path: not empty, no NUL byte (the operating system takes none)."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty path")
+    if "\x00" in text:
+        raise argparse.ArgumentTypeError("a path with a NUL byte")
+    return pathlib.Path(text)
+
+
+def name_or_path(text: str) -> str:
+    """A built-in name or a file path (kept as text): not empty, no NUL byte."""
+    path(text)
+    return text

@@ -11,13 +11,13 @@ import sys
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    from app.options import bounded_float, seed
+    from app.options import bounded_float, name_or_path, path, seed
     from app.sources import MAX_DURATION_S
     from backend.data.scenes import DEFAULT_SCENE, SCENE_NAMES
 
     p = sub.add_parser("render", help="render a synthetic scene to an EuRoC ASL folder (stereo, IMU, ground truth)")
-    p.add_argument("--scene", default=DEFAULT_SCENE, help=f"built-in scene ({', '.join(SCENE_NAMES)}; default {DEFAULT_SCENE}) or a scene JSON file")
-    p.add_argument("--out", required=True, type=pathlib.Path, help="output folder (created; must not hold a mav0 folder already)")
+    p.add_argument("--scene", default=DEFAULT_SCENE, type=name_or_path, help=f"built-in scene ({', '.join(SCENE_NAMES)}; default {DEFAULT_SCENE}) or a scene JSON file")
+    p.add_argument("--out", required=True, type=path, help="output folder (created; must not hold a mav0 folder already)")
     p.add_argument("--duration", type=bounded_float(low=0.0, high=MAX_DURATION_S, low_open=True, unit=" seconds"), default=30.0,
                    help="seconds of motion (default 30; 20 Hz stereo, 200 Hz IMU)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the trajectory and the noise (default 0)")
@@ -39,13 +39,17 @@ def run(args: argparse.Namespace) -> int:
         settings = SequenceSettings(duration_s=args.duration, seed=args.seed, image_noise=args.image_noise, blur_px=args.blur, exposure=args.exposure)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    from backend.export.atomic import make_folder
+
     out: pathlib.Path = args.out
+    created = False
     try:
-        if out.exists() and not out.is_dir():
+        created = not out.exists()
+        if not created and not out.is_dir():
             raise UsageError(f"--out {out}: exists and is not a folder")
         if (out / "mav0").exists():
             raise UsageError(f"--out {out}: already holds a mav0 folder; choose a new folder")
-        out.mkdir(parents=True, exist_ok=True)
+        make_folder(out)
     except OSError as e:
         raise UsageError(f"--out {out}: cannot create it: {e.strerror or e}") from None
     from backend.export.atomic import InterruptedAfterCommit, staged_folder
@@ -67,5 +71,8 @@ def run(args: argparse.Namespace) -> int:
         raise
     except KeyboardInterrupt:
         raise KeyboardInterrupt(f"no mav0 folder was left in {out}") from None
+    finally:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # a failed render leaves no empty folder it made
     print(f"rendered {n} stereo pairs of {scene.name} ({args.duration:g} s) into {out}; read it back with --dataset {out}")
     return 0

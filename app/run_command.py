@@ -38,6 +38,7 @@ PER_FRAME_STAGES = ("point_dm", "tracking", "load")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    from app.options import path
     from app.sources import add_source_arguments
     from backend.optim.problem import VARIANTS
 
@@ -45,7 +46,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                        "and points.ply, lines.ply, planes.ply, cameras.ply")
     add_source_arguments(p, duration_default=DEFAULT_DURATION_S)
     p.add_argument("--variant", required=True, choices=VARIANTS, help="parametrization")
-    p.add_argument("--out", required=True, type=pathlib.Path, help="output folder (created if missing)")
+    p.add_argument("--out", required=True, type=path, help="output folder (created if missing)")
     p.add_argument("--frames", type=int, default=None, metavar="N", help="stereo inputs: stop after the first N frames (default all)")
     p.add_argument("--keyframes", type=int, default=None, metavar="N",
                    help="stop after N keyframes (default: mc-a / mc-b one pass of the trajectory, stereo inputs all)")
@@ -57,11 +58,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def _prepare_out(out: pathlib.Path) -> None:
     from app.cli import UsageError
+    from backend.export.atomic import make_folder
 
     try:
         if out.exists() and not out.is_dir():
             raise UsageError(f"--out {out}: exists and is not a folder")
-        out.mkdir(parents=True, exist_ok=True)
+        make_folder(out)
         probe = out / ".coplanar-write-test"
         probe.write_bytes(b"")
         probe.unlink()
@@ -195,6 +197,10 @@ def run(args: argparse.Namespace) -> int:
 
     engine = build_engine(args, headless=True)
     try:
+        created = not args.out.exists()
+    except OSError:  # a name the file system refuses: _prepare_out says so
+        created = False
+    try:
         if isinstance(engine, SimEngine):
             return _run_simulation(args, engine)
         return _run_stereo(args, engine)
@@ -203,6 +209,9 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         earlier = args.out.is_dir() and any(not p.name.startswith(".") for p in args.out.iterdir())
         raise KeyboardInterrupt(f"nothing written to {args.out}" + ("; the files already there are as they were" if earlier else "")) from None
+    finally:
+        if created and args.out.is_dir() and not any(args.out.iterdir()):
+            args.out.rmdir()  # a failed run leaves no empty folder it made (its parents stay)
 
 
 def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
@@ -302,7 +311,7 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
     mesh = fusion.mesh()
     o3d = fusion._o3d
     from backend.export.atomic import atomic_path
-    from backend.export.map_files import native_stderr_silenced
+    from backend.native_output import native_stderr_silenced
 
     with atomic_path(path) as tmp, native_stderr_silenced():
         if not o3d.io.write_triangle_mesh(str(tmp), mesh):

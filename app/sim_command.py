@@ -12,7 +12,7 @@ import numpy as np
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    from app.options import seed
+    from app.options import path, seed
     from backend.optim.problem import VARIANTS
 
     p = sub.add_parser("sim", help="run the Monte-Carlo study of the six variants")
@@ -20,11 +20,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--runs", type=int, default=30, help="number of noise draws (default 30)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the world and the noise (default 0)")
     p.add_argument("--variants", default="all", help=f"'all' or a comma list of {','.join(VARIANTS)}")
-    p.add_argument("--json", required=True, type=pathlib.Path, help="write the medians here (JSON)")
-    p.add_argument("--plot", type=pathlib.Path, default=None, help="PNG of RMSE and time per variant (default: the --json path with .png)")
+    p.add_argument("--json", required=True, type=path, help="write the medians here (JSON)")
+    p.add_argument("--plot", type=path, default=None, help="PNG of RMSE and time per variant (default: the --json path with .png)")
     p.add_argument("--solver", choices=("gn", "lm"), default="gn", help="gn: Gauss-Newton (the paper's study, default); lm: Levenberg-Marquardt")
     p.add_argument("--sigma-rel", type=float, default=None, help="σ of the -r plane residuals as a fraction of the anchor's distance to the plane (default 0.01)")
-    p.add_argument("--hessian-dir", type=pathlib.Path, default=None, help="write one Hessian sparsity PNG per variant for the first run")
+    p.add_argument("--hessian-dir", type=path, default=None, help="write one Hessian sparsity PNG per variant for the first run")
     p.set_defaults(run=run)
 
 
@@ -123,15 +123,19 @@ def run(args: argparse.Namespace) -> int:
     sigma_rel = SIGMA_REL_DEFAULT if args.sigma_rel is None else args.sigma_rel
     if not (np.isfinite(sigma_rel) and sigma_rel > 0):
         raise UsageError(f"--sigma-rel {args.sigma_rel}: must be a positive number")
+    from backend.export.atomic import make_folder
+
+    if args.hessian_dir is not None:  # first: a --json or --plot path it takes is then refused as a folder
+        try:
+            make_folder(args.hessian_dir)
+        except OSError as e:
+            raise UsageError(f"cannot create --hessian-dir {args.hessian_dir}: {e.strerror or e}") from None
     _check_writable_file(args.json, "--json")
     plot_path = args.plot if args.plot is not None else args.json.with_suffix(".png")
     _check_plot_format(plot_path)
+    if plot_path.absolute() == args.json.absolute():
+        raise UsageError(f"--plot {plot_path}: the same file as --json")
     _check_writable_file(plot_path, "--plot")
-    if args.hessian_dir is not None:
-        try:
-            args.hessian_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise UsageError(f"cannot create --hessian-dir {args.hessian_dir}: {e.strerror or e}") from None
 
     if args.hessian_dir is not None:
         world = sequences.make_world(args.sequence, seed=args.seed)
@@ -143,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
                 structure.write_png(path)
             except OSError as e:
                 raise UsageError(f"--hessian-dir {args.hessian_dir}: cannot write {path.name}: {e.strerror or e}") from None
-            print(f"wrote {path} ({structure.items} items, {structure.params} params, {structure.nnz} nonzeros)", file=sys.stderr)
+            print(f"wrote {path} ({structure.items} items, {structure.params} params, {structure.nnz} nonzeros)")
 
     from tqdm import tqdm
 
@@ -160,15 +164,15 @@ def run(args: argparse.Namespace) -> int:
     }
     from backend.export.atomic import atomic_path
 
-    option = "--json"
+    option, path = "--json", args.json
     try:  # both files complete, or neither (the plot is moved into place first)
         with atomic_path(args.json) as json_tmp:
             json_tmp.write_text(json.dumps(payload, indent=2) + "\n")
-            option = "--plot"
+            option, path = "--plot", plot_path
             with atomic_path(plot_path) as plot_tmp:
                 write_plot(plot_tmp, args.sequence, args.runs, results, variants)
+            option, path = "--json", args.json
     except OSError as e:
-        path = args.json if option == "--json" else plot_path
         raise UsageError(f"cannot write {option} {path}: {e.strerror or e}; neither file was written") from None
     print(format_table(args.sequence, args.runs, summary))
     print(f"wrote {args.json} and {plot_path}", file=sys.stderr)

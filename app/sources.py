@@ -59,13 +59,14 @@ def load_scene_argument(text: str, *, other_names: tuple[str, ...] = ()):  # noq
 
 def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float) -> None:
     """`--scene` | `--dataset` and the options of the engines they start."""
-    from app.options import seed
+    from app.options import name_or_path, seed
+
     names = scene_names()
     source = p.add_mutually_exclusive_group()
-    source.add_argument("--scene", default=None, metavar="NAME|FILE.json",
+    source.add_argument("--scene", default=None, metavar="NAME|FILE.json", type=name_or_path,
                         help=f"rendered scene ({', '.join(names[:-len(MC_SCENES)])}, or a scene JSON file) through the stereo pipeline, "
                              f"or a Monte-Carlo world ({', '.join(MC_SCENES)}; no images); default {default_scene()}")
-    source.add_argument("--dataset", default=None, metavar="DIR", help="EuRoC ASL folder (the one holding mav0) through the stereo pipeline")
+    source.add_argument("--dataset", default=None, metavar="DIR", type=name_or_path, help="EuRoC ASL folder (the one holding mav0) through the stereo pipeline")
     p.add_argument("--duration", type=float, default=None, metavar="SECONDS",
                    help=f"seconds of motion of a rendered scene (default {duration_default:g}; 20 frames per second)")
     p.add_argument("--stride", type=int, default=None, metavar="N",
@@ -81,7 +82,7 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
     p.add_argument("--segmenter", choices=("geometric", "learned", "oracle"), default=None,
                    help="plane instances from stereo disparity (geometric, the stereo default), from the shipped network (learned, "
                         "assets/planeseg.onnx, the VIO default), or on rendered scenes the renderer's exact plane ids (oracle: a reference, not a segmenter)")
-    p.add_argument("--segmenter-model", default=None, metavar="FILE.onnx", help="with --segmenter learned: another model file (its .json contract beside it)")
+    p.add_argument("--segmenter-model", default=None, metavar="FILE.onnx", type=name_or_path, help="with --segmenter learned: another model file (its .json contract beside it)")
     p.set_defaults(duration_default=duration_default)
 
 

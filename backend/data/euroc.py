@@ -399,15 +399,38 @@ def _read_ground_truth(truth_dir: pathlib.Path) -> GroundTruth:
     )
 
 
+def _decode_quietly(encoded: np.ndarray) -> np.ndarray | None:
+    """`cv2.imdecode` as stored (depth and channels kept), without OpenCV's warnings on
+    stderr for a broken file (the caller reports it in one line)."""
+    from backend.native_output import native_stderr_silenced
+
+    if not encoded.size:
+        return None
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        with native_stderr_silenced():  # libpng's own "libpng error: ..." line
+            return cv2.imdecode(encoded, cv2.IMREAD_UNCHANGED)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+
+
 def _load_gray(path: pathlib.Path, calibration: CameraCalibration) -> np.ndarray:
-    """Grayscale uint8 image of the calibration's size."""
+    """Grayscale uint8 image of the calibration's size. EuRoC's images are 8-bit grey;
+    8-bit colour is converted to grey; any other depth is an error naming the file."""
     try:
         encoded = np.fromfile(path, dtype=np.uint8)
     except OSError as error:
         raise DatasetError(path, f"cannot read image ({error.strerror or error})") from None
-    image = cv2.imdecode(encoded, cv2.IMREAD_GRAYSCALE) if encoded.size else None
+    image = _decode_quietly(encoded)
     if image is None:
         raise DatasetError(path, "not a readable image")
+    if image.dtype != np.uint8:
+        raise DatasetError(path, f"image has {image.dtype.itemsize * 8}-bit {image.dtype.kind == 'f' and 'float ' or ''}pixels; expected 8-bit grey")
+    if image.ndim == 3:
+        if image.shape[2] not in (3, 4):
+            raise DatasetError(path, f"image has {image.shape[2]} channels; expected 8-bit grey")
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
     if image.shape != (calibration.height, calibration.width):
         raise DatasetError(path, f"image is {image.shape[1]}x{image.shape[0]}, {calibration.source} says {calibration.width}x{calibration.height}")
     return image

@@ -57,6 +57,24 @@ def write_text_atomic(path: pathlib.Path | str, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
+def make_folder(path: pathlib.Path | str) -> None:
+    """`mkdir -p` without recursion: pathlib's and os.makedirs' recurse once per missing
+    level and fail with RecursionError on a path of thousands of components."""
+    folder = pathlib.Path(path)
+    missing = []
+    while not folder.is_dir():
+        missing.append(folder)
+        if folder.parent == folder:
+            break
+        folder = folder.parent
+    for level in reversed(missing):
+        try:
+            level.mkdir()
+        except FileExistsError:
+            if not level.is_dir():
+                raise
+
+
 def _remove_stale_staging(folder: pathlib.Path) -> None:
     """Staging folders a killed process (SIGKILL, power loss) left in `folder`."""
     for entry in folder.glob(f"{STAGING_PREFIX}*"):

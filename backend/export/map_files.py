@@ -17,11 +17,8 @@ system library (Debian's `libusb-1.0-0`) is a one-line :class:`MissingLibraryErr
 
 from __future__ import annotations
 
-import contextlib
 import io
-import os
 import pathlib
-import sys
 import tempfile
 import zipfile
 
@@ -30,6 +27,7 @@ from plyfile import PlyData, PlyElement
 
 from backend.export.atomic import atomic_path, write_bytes_atomic
 from backend.export.palette import plane_color
+from backend.native_output import native_stderr_silenced
 from backend.export.ply import snapshot_ply_bytes
 from backend.pipeline.snapshot import Snapshot
 
@@ -117,27 +115,6 @@ def planes_ply_bytes(snapshot: Snapshot) -> bytes:
     buffer = io.BytesIO()
     PlyData(elements, text=False, byte_order="<", comments=["coplanar plane patches: world frame, metres, z up"]).write(buffer)
     return buffer.getvalue()
-
-
-@contextlib.contextmanager
-def native_stderr_silenced():  # noqa: ANN202
-    """open3d's PLY writer (RPly) prints one line per failed element to the process's
-    stderr on a full disk; its False return is what reports the failure (one line)."""
-    try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):  # stderr redirected in-process: nothing native to silence
-        yield
-        return
-    sys.stderr.flush()
-    saved = os.dup(fd)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, fd)
-        yield
-    finally:
-        os.dup2(saved, fd)
-        os.close(saved)
-        os.close(devnull)
 
 
 def write_map_files(snapshot: Snapshot, directory: pathlib.Path | str) -> list[pathlib.Path]:

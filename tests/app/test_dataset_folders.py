@@ -101,3 +101,30 @@ def test_a_huge_resolution_is_one_line(rendered: pathlib.Path, tmp_path: pathlib
     assert rc == 2
     _one_error_line(err, [str(root / "mav0" / "cam0" / "sensor.yaml"), "larger than 16384 pixels per side"])
     assert not out.exists()
+
+
+def test_a_16_bit_image_is_one_line_and_a_colour_one_is_read_as_grey(rendered: pathlib.Path, tmp_path: pathlib.Path, capfd: pytest.CaptureFixture[str]) -> None:
+    """Images are decoded as stored and their depth checked: EuRoC's are 8-bit grey. A
+    truncated PNG is one line too, without OpenCV's own warning on stderr."""
+    import cv2
+    import numpy as np
+
+    root = tmp_path / "seq"
+    shutil.copytree(rendered, root)
+    shutil.rmtree(root / "mav0" / "imu0")
+    images = sorted((root / "mav0" / "cam0" / "data").glob("*.png"))
+    grey = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(images[0]), np.dstack([grey] * 3))
+    rc, _, err = _run(["--dataset", str(root), "--variant", "P-wo", "--frames", "3", "--out", str(tmp_path / "colour")])
+    assert rc == 0, err
+
+    cv2.imwrite(str(images[1]), grey.astype(np.uint16) * 257)
+    rc, _, err = _run(["--dataset", str(root), "--variant", "P-wo", "--out", str(tmp_path / "deep")])
+    assert rc == 2
+    _one_error_line(err, [str(images[1]), "16-bit pixels; expected 8-bit grey"])
+
+    images[1].write_bytes(images[2].read_bytes()[:2000])
+    capfd.readouterr()
+    rc, _, err = _run(["--dataset", str(root), "--variant", "P-wo", "--out", str(tmp_path / "cut")])
+    assert rc == 2
+    _one_error_line(err + capfd.readouterr().err, [str(images[1]), "not a readable image"])
