@@ -52,10 +52,12 @@ def to_output_labels(labels: np.ndarray) -> np.ndarray:
     return labels[np.ix_(ys, xs)].astype(np.int16)
 
 
-def random_room(rng: np.random.Generator, name: str) -> Scene:
+def random_room(rng: np.random.Generator, name: str, *, leaning: bool = False) -> Scene:
     """A random box-shaped room with decals on the walls and patches on the floor, boxes,
     maybe a table, and non-planar clutter;
-    three in ten are open (no ceiling, one to three walls missing)."""
+    three in ten are open (no ceiling, one to three walls missing). With `leaning`, half
+    the rooms also get one to three panels leaning against a wall at 55–80° from the
+    floor (like the padded mats of EuRoC's Vicon room), each its own plane."""
     X, Y, H = rng.uniform(1.8, 4.5), rng.uniform(1.8, 4.5), rng.uniform(2.3, 3.6)
     seed = int(rng.integers(1 << 30))
     kind = lambda: str(rng.choice(WALL_KINDS))  # noqa: E731
@@ -95,6 +97,17 @@ def random_room(rng: np.random.Generator, name: str) -> Scene:
         cxy = (rng.uniform(-X + s[0], X - s[0]), rng.uniform(-Y + s[1], Y - s[1]))
         rects += box_rectangles(cxy, tuple(s), kind=kind(), seed=seed + 200 + b, first_plane_id=next_id)
         next_id += 5
+    if leaning and walls and rng.random() < 0.5:
+        for k in range(int(rng.integers(1, 4))):
+            _, base, n, half = walls[int(rng.integers(len(walls)))]
+            tilt = np.radians(rng.uniform(55, 80))  # from the floor
+            length, w = rng.uniform(0.8, min(2.2, H - 0.1)), rng.uniform(0.8, min(2.4, 2 * half - 0.2))
+            along = np.cross(_Z, n)
+            foot = base + along * rng.uniform(-half + w / 2, half - w / 2)
+            centre = foot + n * (0.5 * length * np.cos(tilt)) + _Z * (0.5 * length * np.sin(tilt))
+            normal = np.sin(tilt) * n + np.cos(tilt) * _Z
+            rects.append(facing_rectangle(centre, normal, (w, length), tex(400 + k), next_id))
+            next_id += 1
     spheres = tuple(
         Sphere(np.array([rng.uniform(-X + 0.5, X - 0.5), rng.uniform(-Y + 0.5, Y - 0.5), rng.uniform(0.2, 1.5)]), float(rng.uniform(0.15, 0.45)),
                shade=float(rng.uniform(60, 220)), pattern_cells=int(rng.integers(4, 14)))
@@ -124,12 +137,13 @@ def random_pose(rng: np.random.Generator, scene: Scene) -> tuple[np.ndarray, np.
     return np.stack([r, d, f], axis=1), t
 
 
-def rendered_samples(seed: int, *, layouts: int, views_per_layout: int) -> list[Sample]:
-    """Samples of `layouts` random rooms drawn from `seed` (disjoint seeds: disjoint layouts)."""
+def rendered_samples(seed: int, *, layouts: int, views_per_layout: int, leaning: bool = False) -> list[Sample]:
+    """Samples of `layouts` random rooms drawn from `seed` (disjoint seeds: disjoint layouts);
+    `leaning`: see `random_room`."""
     rng = np.random.default_rng([seed, 0x5E6])
     out = []
     for k in range(layouts):
-        scene = random_room(rng, f"random-{seed}-{k}")
+        scene = random_room(rng, f"random-{seed}-{k}", leaning=leaning)
         for _ in range(views_per_layout):
             R, t = random_pose(rng, scene)
             view = render_view(scene, CAMERA, R, t, gain=float(rng.uniform(0.55, 1.45)), blur_sigma_px=float(rng.uniform(0, 1.5)),

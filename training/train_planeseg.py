@@ -35,7 +35,7 @@ def build_data(args: argparse.Namespace) -> list[Sample]:
     t0 = time.perf_counter()
     samples: list[Sample] = []
     for chunk in range(args.layouts // 25):
-        samples += rendered_samples(TRAIN_SEED_BASE + args.seed * 100 + chunk, layouts=25, views_per_layout=args.views)
+        samples += rendered_samples(TRAIN_SEED_BASE + args.seed * 100 + chunk, layouts=25, views_per_layout=args.views, leaning=args.leaning)
         print(f"  rendered {len(samples)} samples ({time.perf_counter() - t0:.0f} s)", flush=True)
     if args.real is not None and args.real.is_dir():
         real = real_samples(args.real, every=args.real_every)
@@ -74,6 +74,10 @@ def main() -> int:
     p.add_argument("--layouts", type=int, default=300, help="random rooms rendered (multiple of 25)")
     p.add_argument("--views", type=int, default=8, help="views per room")
     p.add_argument("--real", type=pathlib.Path, default=DEFAULT_REAL, help="EuRoC folder for pseudo-labels (skipped if absent)")
+    p.add_argument("--leaning", action=argparse.BooleanOptionalAction, default=False,
+                   help="rooms with panels leaning against the walls (see planeseg_data.random_room); tried once "
+                        "with --gamma 0.4, worse on held-out and real frames (README), so off by default")
+    p.add_argument("--gamma", type=float, default=0.0, help="photometric augmentation: gamma drawn from exp(±gamma)")
     p.add_argument("--real-every", type=int, default=1)
     p.add_argument("--real-repeat", type=int, default=2)
     p.add_argument("--epochs", type=int, default=24)
@@ -121,6 +125,8 @@ def main() -> int:
             gain = rng.uniform(0.75, 1.25, (len(idx), 1, 1)).astype(np.float32)
             bias = rng.uniform(-0.1, 0.1, (len(idx), 1, 1)).astype(np.float32)
             x = np.clip(x * gain + bias, 0.0, 1.0)
+            if args.gamma > 0:
+                x = x ** np.exp(rng.uniform(-args.gamma, args.gamma, (len(idx), 1, 1))).astype(np.float32)
             xt = torch.from_numpy(np.ascontiguousarray(x[:, None])).to(device)
             yt = torch.from_numpy(np.ascontiguousarray(y)).to(device)
             logit, emb = model(xt)
@@ -138,7 +144,7 @@ def main() -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "command": "python training/train_planeseg.py " + " ".join(sys.argv[1:]),
-        "seed": args.seed, "layouts": args.layouts, "views": args.views, "real": args.real.name if args.real and args.real.is_dir() else None,
+        "seed": args.seed, "layouts": args.layouts, "leaning": args.leaning, "gamma": args.gamma, "views": args.views, "real": args.real.name if args.real and args.real.is_dir() else None,
         "samples": len(samples), "epochs": args.epochs, "batch": args.batch, "lr": args.lr, "width": args.width,
         "embed_dim": EMBED_DIM, "delta_v": DELTA_V, "delta_d": DELTA_D, "device": args.device, "threads": args.threads,
         "data_s": round(t_data, 1), "train_s": round(t_train, 1), "torch": torch.__version__,
