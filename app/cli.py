@@ -66,7 +66,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         elif isinstance(e, ValueError) and "null" in str(e) and ("byte" in str(e) or "character" in str(e)):
             print("error: a file name or address with a NUL character", file=sys.stderr)
         elif isinstance(e, OSError):  # the environment (a full disk, a folder that went away): one line naming the file
-            print(one_line(f"error: {e.filename}: {e.strerror}" if e.filename and e.strerror else f"error: {e}"), file=sys.stderr)
+            where = f"{e.filename}: " if e.filename else ""
+            print(one_line(f"error: {where}{e.strerror}" if e.strerror else f"error: {e}"), file=sys.stderr)
         else:
             raise
         return EXIT_BAD_INPUT

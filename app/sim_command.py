@@ -164,16 +164,17 @@ def run(args: argparse.Namespace) -> int:
     }
     from backend.export.atomic import atomic_path
 
-    option, path = "--json", args.json
-    try:  # both files complete, or neither (the plot is moved into place first)
+    option, path, plot_written = "--json", args.json, False
+    try:  # each file complete or absent; the plot is moved into place just before the JSON
         with atomic_path(args.json) as json_tmp:
             json_tmp.write_text(json.dumps(payload, indent=2) + "\n")
             option, path = "--plot", plot_path
             with atomic_path(plot_path) as plot_tmp:
                 write_plot(plot_tmp, args.sequence, args.runs, results, variants)
-            option, path = "--json", args.json
+            option, path, plot_written = "--json", args.json, True
     except OSError as e:
-        raise UsageError(f"cannot write {option} {path}: {e.strerror or e}; neither file was written") from None
+        written = f"only {plot_path} was written" if plot_written else "neither file was written"
+        raise UsageError(f"cannot write {option} {path}: {e.strerror or e}; {written}") from None
     print(format_table(args.sequence, args.runs, summary))
     print(f"wrote {args.json} and {plot_path}", file=sys.stderr)
     return 0
