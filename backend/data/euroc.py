@@ -52,6 +52,7 @@ from backend.data.calibration import (
 from backend.data.errors import DatasetError, read_text
 from backend.data.motion import ImuData
 from backend.geometry.camera import PinholeCamera
+from backend.native_output import native_stderr_silenced
 
 CAMERA_COLUMNS = ("timestamp", "filename")
 IMU_COLUMNS = ("timestamp", "w_RS_S_x", "w_RS_S_y", "w_RS_S_z", "a_RS_S_x", "a_RS_S_y", "a_RS_S_z")
@@ -402,8 +403,6 @@ def _read_ground_truth(truth_dir: pathlib.Path) -> GroundTruth:
 def _decode_quietly(encoded: np.ndarray) -> np.ndarray | None:
     """`cv2.imdecode` as stored (depth and channels kept), without OpenCV's warnings on
     stderr for a broken file (the caller reports it in one line)."""
-    from backend.native_output import native_stderr_silenced
-
     if not encoded.size:
         return None
     level = cv2.utils.logging.getLogLevel()

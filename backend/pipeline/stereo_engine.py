@@ -580,27 +580,8 @@ class StereoEngine:
         self._last_kf_tracked = len(obs.point_id)
         timing["mapping"] = 1e3 * (time.perf_counter() - t0)
 
-        # 4. Plane segmentation and co-planar detection.
-        masks: PlaneMasks | None = None
-        detection = Detection((), (), (), (), ())
-        p_ids = obs.point_id[self._points.ok[obs.point_id]]
-        l_ids = obs.line_id[self._lines.ok[obs.line_id]]
-        self._det_state = (p_ids, np.zeros(len(p_ids), np.uint8), l_ids, np.zeros(len(l_ids), np.uint8))
-        timing["plane_seg"] = timing["plane_fit"] = 0.0
-        if use_planes:
-            t0 = time.perf_counter()
-            masks = self._segment(i, left, right)
-            timing["plane_seg"] = 1e3 * (time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            detection = self._detect_planes(obs, masks, new_points, new_lines, rng)
-            timing["plane_fit"] = 1e3 * (time.perf_counter() - t0)
-
-        # 5. Window bundle adjustment and 6. culling.
-        report, hessian = self._optimize(k, timing)
-        t0 = time.perf_counter()
-        self._cull(k)
-        self._update_local_map(k)
-        timing["culling"] = 1e3 * (time.perf_counter() - t0)
+        # 4. Plane segmentation and co-planar detection, 5. window bundle adjustment, 6. culling.
+        masks, detection, report, hessian = self._detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=(left, right) if use_planes else None)
         if self._frame_poses:  # the motion model continues from the optimized keyframe pose
             self._frame_poses[-1] = (i, self._R_est[k].copy(), self._t_est[k].copy())
 
@@ -615,6 +596,31 @@ class StereoEngine:
         tracking = Tracking(frames=frames, lost_frames=lost, reinitializations=reinitializations, tracked_points=int(np.count_nonzero(p_match >= 0)), tracked_lines=int(np.count_nonzero(l_match >= 0)), keyframe_reason=reason)
         self._last = self._snapshot(k, detection, self._det_state, report, hessian, image=image, tracking=tracking, message=message)
         return self._last
+
+    def _detect_and_solve(self, k: int, i: int, obs, new_points, new_lines, rng, timing: dict[str, float], *, images: tuple[np.ndarray, np.ndarray] | None):  # noqa: ANN001, ANN202
+        """Steps 4–6 for keyframe k (frame i): plane segmentation of `images` (the
+        segmenter's left and right; None: no planes this keyframe) and co-planar detection,
+        the window bundle adjustment, culling. Returns the masks (or None), the detection,
+        the solver report and the Hessian image."""
+        masks: PlaneMasks | None = None
+        detection = Detection((), (), (), (), ())
+        p_ids = obs.point_id[self._points.ok[obs.point_id]]
+        l_ids = obs.line_id[self._lines.ok[obs.line_id]]
+        self._det_state = (p_ids, np.zeros(len(p_ids), np.uint8), l_ids, np.zeros(len(l_ids), np.uint8))
+        timing["plane_seg"] = timing["plane_fit"] = 0.0
+        if images is not None:
+            t0 = time.perf_counter()
+            masks = self._segment(i, *images)
+            timing["plane_seg"] = 1e3 * (time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            detection = self._detect_planes(obs, masks, new_points, new_lines, rng)
+            timing["plane_fit"] = 1e3 * (time.perf_counter() - t0)
+        report, hessian = self._optimize(k, timing)
+        t0 = time.perf_counter()
+        self._cull(k)
+        self._update_local_map(k)
+        timing["culling"] = 1e3 * (time.perf_counter() - t0)
+        return masks, detection, report, hessian
 
     def _segment(self, i: int, left: np.ndarray, right: np.ndarray) -> PlaneMasks:
         """Plane instances of frame i: from the segmenter's images, or by frame for the

@@ -47,7 +47,7 @@ import numpy as np
 from backend.data.motion import ImuData, ImuNoise
 from backend.frontend.lines import Segments, detect_segments, match_segments_temporal
 from backend.frontend.points import Keypoints, best_matches, pair_hamming
-from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
+from backend.frontend.segmentation import PlaneSegmenter
 from backend.geometry import line as line_geo
 from backend.geometry import so3
 from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, PreparedImuFactor, imu_factor, predict_state, preintegrate, preintegration_params
@@ -424,25 +424,9 @@ class VioEngine(StereoEngine):
         self._last_kf_tracked = int(np.count_nonzero(p_match >= 0)) if k > self._segment_start + 1 else len(obs.point_id)  # map points tracked (new ones are not yet)
         timing["mapping"] = 1e3 * (time.perf_counter() - t0)
 
-        masks: PlaneMasks | None = None
-        detection = Detection((), (), (), (), ())
-        p_ids = obs.point_id[self._points.ok[obs.point_id]]
-        l_ids = obs.line_id[self._lines.ok[obs.line_id]]
-        self._det_state = (p_ids, np.zeros(len(p_ids), np.uint8), l_ids, np.zeros(len(l_ids), np.uint8))
-        timing["plane_seg"] = timing["plane_fit"] = 0.0
-        if use_planes and k > self._segment_start:
-            t0 = time.perf_counter()
-            masks = self._segment(i, left, left)  # monocular: the segmenter sees the left image only
-            timing["plane_seg"] = 1e3 * (time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            detection = self._detect_planes(obs, masks, new_points, new_lines, rng)
-            timing["plane_fit"] = 1e3 * (time.perf_counter() - t0)
-
-        report, hessian = self._optimize(k, timing)
-        t0 = time.perf_counter()
-        self._cull(k)
-        self._update_local_map(k)
-        timing["culling"] = 1e3 * (time.perf_counter() - t0)
+        # Monocular: the segmenter sees the left image only.
+        images = (left, left) if use_planes and k > self._segment_start else None
+        masks, detection, report, hessian = self._detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=images)
         if not self._initialized:
             self._try_initialize(k)
         if self._frame_poses:

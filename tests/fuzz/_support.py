@@ -9,12 +9,17 @@ Profiles (environment variable `COPLANAR_FUZZ`):
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import pathlib
 import shutil
 
+import pytest
 from hypothesis import HealthCheck, settings
+
+from app import cli
 
 PROFILE = os.environ.get("COPLANAR_FUZZ", "ci")
 if PROFILE not in ("ci", "long"):
@@ -26,6 +31,16 @@ def fuzz_settings(ci_examples: int) -> settings:
     long = PROFILE == "long"
     return settings(max_examples=ci_examples * (10 if long else 1), deadline=None, derandomize=not long, database=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+def run_cli(argv: list[str], capfd: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    """`coplanar ARGV` in this process: its exit code and everything it printed on stderr,
+    including what C libraries (libpng, OpenCV, open3d) wrote straight to file descriptor 2."""
+    capfd.readouterr()
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        rc = cli.main(argv)
+    return rc, err.getvalue() + capfd.readouterr().err
 
 
 def walk(folder: pathlib.Path) -> list[pathlib.Path]:
@@ -54,7 +69,7 @@ def remove(folder: pathlib.Path) -> None:
     shutil.rmtree(folder, ignore_errors=True)
 
 
-def check_outcome(rc: int, stdout: str, stderr: str, *, written: list[pathlib.Path] = (), folders: list[pathlib.Path] = ()) -> None:
+def check_outcome(rc: int, stderr: str, *, written: list[pathlib.Path] = (), folders: list[pathlib.Path] = ()) -> None:
     """What a user is promised for any input: exit 0 or 2; for 2, exactly one `error:` line
     on stderr and nothing else; never a traceback; and no half-written output: each path of
     `written` is absent on 2, and present and complete on 0 (JSON parses, PLY has its

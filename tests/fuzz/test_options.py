@@ -10,8 +10,6 @@ one Monte-Carlo run) are skipped: their validity is not in question.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import math
 import os
 
@@ -19,8 +17,7 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from app import cli
-from tests.fuzz._support import check_outcome, fuzz_settings, remove, walk
+from tests.fuzz._support import check_outcome, fuzz_settings, remove, run_cli, walk
 
 RUN_FILES = ("trajectory.txt", "keyframes.txt", "groundtruth.txt", "metrics.json", "map.ply", "points.ply", "lines.ply", "planes.ply", "cameras.ply")
 numbers = (st.floats(allow_nan=True, allow_infinity=True).map(repr) | st.integers(min_value=-(10**30), max_value=10**30).map(str)
@@ -70,16 +67,12 @@ def test_any_option_value_runs_or_is_refused_in_one_line(tmp_path_factory: pytes
     cwd = os.getcwd()
     os.chdir(work)  # relative paths among the drawn values land here
     try:
-        capfd.readouterr()
-        stdout, stderr = io.StringIO(), io.StringIO()
-        with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-            rc = cli.main(argv)
-        native = capfd.readouterr()
+        rc, stderr = run_cli(argv, capfd)
         os.chdir(cwd)
         written = []
         if rc == 0 and command.startswith("run") and "\x00" not in overrides["--out"]:
             written = [work / overrides["--out"] / name for name in RUN_FILES]
-        check_outcome(rc, stdout.getvalue() + native.out, stderr.getvalue() + native.err, written=written, folders=[work])
+        check_outcome(rc, stderr, written=written, folders=[work])
         if rc == 2:  # nothing written: no file anywhere under the case's folder
             assert not [p for p in walk(work) if p.is_file()], sorted(walk(work))
     finally:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import io
 import json
 import shutil
 
@@ -17,9 +16,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from app import cli
 from backend.data.scenes import builtin_scene, scene_to_dict
-from tests.fuzz._support import check_outcome, fuzz_settings
+from tests.fuzz._support import check_outcome, fuzz_settings, run_cli
 
 BASE = scene_to_dict(builtin_scene("room"))
 numbers = st.floats(allow_nan=True, allow_infinity=True) | st.integers(min_value=-(10**20), max_value=10**20) | st.sampled_from((0, -1, 1e6, 1e-9, 5e4))
@@ -75,14 +73,10 @@ def test_a_corrupted_scene_file_renders_or_is_refused_in_one_line(tmp_path_facto
     work = tmp_path_factory.mktemp("scene")
     scene, out = work / "scene.json", work / "out"
     scene.write_text(text)
-    capfd.readouterr()
-    stdout, stderr = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        rc = cli.main(["render", "--scene", str(scene), "--duration", "0.05", "--out", str(out)])
-    native = capfd.readouterr()
-    check_outcome(rc, stdout.getvalue() + native.out, stderr.getvalue() + native.err, folders=[work])
+    rc, stderr = run_cli(["render", "--scene", str(scene), "--duration", "0.05", "--out", str(out)], capfd)
+    check_outcome(rc, stderr, folders=[work])
     if rc == 2:
-        assert str(scene) in stderr.getvalue(), stderr.getvalue()
+        assert str(scene) in stderr, stderr
         assert not (out / "mav0").exists()
     else:
         assert (out / "mav0" / "cam0" / "data.csv").is_file() and (out / "mav0" / "imu0" / "data.csv").is_file()

@@ -43,6 +43,19 @@ def _numeric_jacobian(problem, state, eps: float = 1e-6) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
+def linearize_against_numeric(problem, state, label: str):  # noqa: ANN001, ANN201
+    """`problem.linearize(state)`, after asserting that its analytic Jacobian matches central
+    differences (relative to each column's scale, at least 1) to 1e-5."""
+    lin = problem.linearize(state)
+    J = lin.jacobian.toarray()
+    J_num = _numeric_jacobian(problem, state)
+    scale = np.maximum(np.abs(J_num).max(axis=0, keepdims=True), 1.0)
+    err = np.abs(J - J_num) / scale
+    worst = np.unravel_index(np.argmax(err), err.shape)
+    assert err.max() < 1e-5, f"{label}: worst column {worst[1]} row {worst[0]}: {J[worst]} vs {J_num[worst]}"
+    return lin
+
+
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_problem_jacobian_matches_numeric(variant: str) -> None:
     data = _stereo_data()
@@ -50,13 +63,7 @@ def test_problem_jacobian_matches_numeric(variant: str) -> None:
     # Evaluate away from the initial values so that no residual is trivially zero.
     rng = np.random.default_rng(5)
     state = problem.retract(problem.initial_state(), 1e-3 * rng.standard_normal(problem.layout.n_params))
-    lin = problem.linearize(state)
-    J = lin.jacobian.toarray()
-    J_num = _numeric_jacobian(problem, state)
-    scale = np.maximum(np.abs(J_num).max(axis=0, keepdims=True), 1.0)
-    err = np.abs(J - J_num) / scale
-    worst = np.unravel_index(np.argmax(err), err.shape)
-    assert err.max() < 1e-5, f"{variant}: worst column {worst[1]} row {worst[0]}: {J[worst]} vs {J_num[worst]}"
+    lin = linearize_against_numeric(problem, state, variant)
     # Every factor type of the variant is present in the check.
     assert {"points", "odometry", "prior"} <= set(lin.costs)
     if variant.startswith("PL"):
