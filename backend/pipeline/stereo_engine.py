@@ -211,7 +211,10 @@ class _Store:
             raise AttributeError(name) from None
 
     def add(self, **values: np.ndarray) -> np.ndarray:
-        """Append rows (one per entry of each column's values); returns their ids."""
+        """Append rows (one per entry of each column's values); returns their ids. `born`
+        (the keyframe from which re-observations are counted) defaults to the anchor."""
+        if "born" in self._cols and "born" not in values:
+            values["born"] = values["anchor"]
         count = len(next(iter(values.values())))
         start = len(self)
         for name, col in self._cols.items():
@@ -223,14 +226,14 @@ class _Store:
 def _point_store() -> _Store:
     return _Store({
         "p_world": ((3,), float), "ok": ((), bool), "anchor": ((), np.int64), "anchor_uv": ((2,), float), "anchor_ur": ((), float),
-        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64),
+        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64), "born": ((), np.int64),
     })
 
 
 def _line_store() -> _Store:
     return _Store({
         "m": ((3,), float), "v": ((3,), float), "ok": ((), bool), "anchor": ((), np.int64), "anchor_uv": ((4,), float), "anchor_ruv": ((4,), float),
-        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64),
+        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64), "born": ((), np.int64),
     })
 
 
@@ -989,10 +992,10 @@ class StereoEngine:
         a = P.anchor[ids]
         z = np.einsum("nji,nj->ni", self._R_est[a], P.p_world[ids] - self._t_est[a])[:, 2]
         bad_p[ids[~((z > 0.5 * s.min_depth_m) & (z < 2.0 * s.max_depth_m))]] = True
-        stale = (a <= k - s.cull_after_keyframes) & (a >= self._segment_start) & (P.n_kf[ids] < s.min_keyframe_observations)
+        stale = (P.born[ids] <= k - s.cull_after_keyframes) & (a >= self._segment_start) & (P.n_kf[ids] < s.min_keyframe_observations)
         bad_p[ids[stale]] = True
         ids_l = np.flatnonzero(Lm.ok[:])
-        stale_l = (Lm.anchor[ids_l] <= k - s.cull_after_keyframes) & (Lm.anchor[ids_l] >= self._segment_start) & (Lm.n_kf[ids_l] < s.min_keyframe_observations)
+        stale_l = (Lm.born[ids_l] <= k - s.cull_after_keyframes) & (Lm.anchor[ids_l] >= self._segment_start) & (Lm.n_kf[ids_l] < s.min_keyframe_observations)
         bad_l[ids_l[stale_l]] = True
         P.ok[np.flatnonzero(bad_p)] = False
         Lm.ok[np.flatnonzero(bad_l)] = False

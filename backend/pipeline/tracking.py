@@ -188,8 +188,6 @@ def relocalize(
     (no spatial gate), then PnP inside RANSAC (OpenCV, 3 px). Returns `(R_world_camera,
     t_world_camera, match)` with `match` (P,) the keypoint of each map point (-1: none or
     outlier), or None with fewer than `min_inliers` inliers."""
-    import cv2
-
     from backend.frontend.points import best_matches, nearest_hamming
 
     if len(p_world) < min_inliers or len(keypoints_uv) < min_inliers:
@@ -200,14 +198,30 @@ def relocalize(
     i = np.flatnonzero(match >= 0)
     if len(i) < min_inliers:
         return None
+    pose = pnp_ransac(camera, p_world[i], keypoints_uv[match[i]], min_inliers=min_inliers, seed=seed)
+    if pose is None:
+        return None
+    keep = np.full(len(p_world), -1, dtype=np.int64)
+    keep[i[pose[2]]] = match[i[pose[2]]]
+    return pose[0], pose[1], keep
+
+
+def pnp_ransac(camera: PinholeCamera, p_world: np.ndarray, uv: np.ndarray, *, min_inliers: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Camera pose from world points `p_world` (N, 3) seen at pixels `uv` (N, 2): EPnP inside
+    RANSAC (OpenCV, 3 px, 200 iterations, seeded). Returns `(R_world_camera, t_world_camera,
+    inlier mask (N,))`, or None with fewer than `min_inliers` inliers."""
+    import cv2
+
+    if len(p_world) < max(min_inliers, 4):
+        return None
     cv2.setRNGSeed(seed)
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-        p_world[i].astype(np.float64), keypoints_uv[match[i]].astype(np.float64), camera.K, None,
+        p_world.astype(np.float64), uv.astype(np.float64), camera.K, None,
         iterationsCount=200, reprojectionError=3.0, confidence=0.999, flags=cv2.SOLVEPNP_EPNP,
     )
     if not ok or inliers is None or len(inliers) < min_inliers:
         return None
     R_camera_world = cv2.Rodrigues(rvec)[0]
-    keep = np.full(len(p_world), -1, dtype=np.int64)
-    keep[i[inliers.ravel()]] = match[i[inliers.ravel()]]
-    return R_camera_world.T, -R_camera_world.T @ tvec.ravel(), keep
+    mask = np.zeros(len(p_world), bool)
+    mask[inliers.ravel()] = True
+    return R_camera_world.T, -R_camera_world.T @ tvec.ravel(), mask

@@ -9,11 +9,21 @@ What differs from stereo:
   each other's epipolar line, `epipolar_px`; parallax at least `min_parallax_deg`), new
   lines likewise (LBD matches; back-projection planes at least `min_parallax_deg` apart).
   Landmarks are anchored in the keyframe that saw them first.
-- **Start (structure from motion).** Frames are matched with the first keyframe until the
-  median rotation-compensated parallax reaches `init_parallax_px`; the essential matrix
-  (OpenCV, RANSAC) gives the second keyframe and the first points, with the median depth
-  set to `init_median_depth` (an arbitrary unit until the IMU gives the scale). Visual-only
-  windows follow (the first keyframe held, the distance of the first two fixing the scale).
+- **Start (structure from motion).** The first keyframe's features are followed frame to
+  frame (Lucas-Kanade flow started where the gyroscope's rotation moves them,
+  `backend.frontend.flow`) until their median rotation-compensated parallax reaches
+  `init_parallax_px`; the essential matrix (OpenCV, RANSAC) gives the second keyframe and
+  the first points, with the median depth set to `init_median_depth` (an arbitrary unit
+  until the IMU gives the scale), unless its rotation disagrees with the gyroscope's by more
+  than `init_gyro_agreement_deg` plus `init_gyro_bias_bound_rad_s` times the interval (the
+  unknown gyro bias): then too little translation separates it from the rotation, and the
+  start waits for more parallax. Visual-only windows follow (the first keyframe held, the
+  distance of the first two fixing the scale). Until the initialization (`flow_tracks`) the
+  map points seen in the last frame and up to `flow_max_tracks` candidate features of the
+  recent keyframes are followed the same way, as VINS-Mono's front end: a frame's pose is
+  EPnP-RANSAC on the followed map points, refined with them and the projection search's
+  matches for the others; a candidate becomes a point when it has the parallax against the
+  keyframe that detected it (at most `flow_max_age_keyframes` back).
 - **Initialization** (`backend.vio.alignment`, VINS-Mono's loosely coupled alignment): once
   `init_keyframes` keyframes span at least `init_min_span_s`, the gyroscope bias, gravity,
   the scale and the velocities are estimated; the map is scaled and rotated into a
@@ -22,7 +32,8 @@ What differs from stereo:
   carries IMU factors. A rejected alignment is retried at the next keyframe with the
   latest keyframes; the snapshot says what was estimated and why it was rejected.
 - **Tracking** predicts each frame's pose by preintegrating the IMU from the last keyframe
-  (constant velocity before the initialization), then refines it against the local map.
+  (constant velocity before the initialization), then refines it against the local map
+  (before the initialization with the followed map points too, above).
 - **Keyframes** (VINS-Mono): the average rotation-compensated parallax of the tracked points
   since the last keyframe reaches `keyframe_parallax_px`, or fewer than
   `min_tracked_points` are tracked, or `max_keyframe_interval_s` passed (IMU factors
@@ -45,6 +56,7 @@ import cv2
 import numpy as np
 
 from backend.data.motion import ImuData, ImuNoise
+from backend.frontend.flow import FlowTracks, follow
 from backend.frontend.lines import Segments, detect_segments, match_segments_temporal
 from backend.frontend.points import Keypoints, best_matches, pair_hamming
 from backend.frontend.segmentation import PlaneSegmenter
@@ -68,6 +80,7 @@ from backend.pipeline.stereo_engine import (
     _Tracked,
     _Window,
 )
+from backend.pipeline.tracking import pnp_ransac
 from backend.vio.alignment import Alignment, AlignmentSettings, align_visual_inertial
 
 
@@ -79,7 +92,11 @@ class VioSettings(StereoSettings):
     tracked points, or `max_keyframe_interval_s`; new landmarks need
     `epipolar_px` agreement and `min_parallax_deg` with one of the `triangulation_keyframes`
     previous keyframes (newest first); the start needs `init_parallax_px`
-    and `init_min_matches`; initialization after `init_keyframes` keyframes spanning
+    and `init_min_matches`, and an essential matrix whose rotation agrees with the gyroscope's
+    (`init_gyro_agreement_deg` + `init_gyro_bias_bound_rad_s` × interval); before the
+    initialization, `flow_tracks` follows map points and candidate features frame to frame
+    (at most `flow_max_tracks`, `flow_min_distance_px` apart, for `flow_max_age_keyframes`,
+    triangulated with `flow_min_parallax_deg`); initialization after `init_keyframes` keyframes spanning
     `init_min_span_s` (`alignment`: its acceptance; the scale may be 20 % uncertain, the
     windows with IMU factors refine it); the gauge prior's σ (`gauge_sigma_m`, `gauge_sigma_yaw_rad` for
     position and yaw, `gauge_sigma_tilt_rad` for roll and pitch) and the initial bias σ
@@ -97,6 +114,8 @@ class VioSettings(StereoSettings):
     epipolar_px: float = 2.0
     min_parallax_deg: float = 1.0
     init_parallax_px: float = 15.0
+    init_gyro_agreement_deg: float = 1.0
+    init_gyro_bias_bound_rad_s: float = 0.1
     init_min_matches: int = 60
     init_median_depth: float = 3.0
     init_keyframes: int = 8
@@ -111,7 +130,12 @@ class VioSettings(StereoSettings):
     rebias_gyro: float = 0.003
     max_lost_frames: int = 10
     max_imu_only_keyframes: int = 40
-    triangulation_keyframes: int = 8
+    triangulation_keyframes: int = 2
+    flow_tracks: bool = True
+    flow_max_tracks: int = 300
+    flow_min_distance_px: float = 20.0
+    flow_max_age_keyframes: int = 20
+    flow_min_parallax_deg: float = 1.0
     alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2)
 
 
@@ -166,7 +190,14 @@ class VioEngine(StereoEngine):
         self._bootstrapping = True  # no map in the segment yet: frames are matched with its first keyframe
         self._flow: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 0), np.uint8))
         self._restart_flow = False
+        self._ftracks = FlowTracks.empty()  # before the initialization: candidate features followed frame to frame
+        self._ftrack_image: np.ndarray | None = None
+        self._track_kp = np.zeros(0, np.int64)  # each track's keypoint in the current frame (-1: none)
+        self._mflow: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros((0, 2)))  # map points seen in the last frame: ids, pixels
+        self._mflow_kp = np.zeros(0, np.int64)  # their keypoint in the current frame (-1: none)
         self._lost_run = 0
+        self._last_frame_ns: int | None = None  # the last frame read
+        self._R_flow: np.ndarray | None = None  # the camera's rotation since then, from the gyroscope
         self._imu_only_run = 0
         self._marginalized_before = 0
 
@@ -181,6 +212,12 @@ class VioEngine(StereoEngine):
             i, left, _, kp = self._read_frame(timing)
             frames += 1
             t0 = time.perf_counter()
+            t_ns = int(self.data_source.timestamps_ns[i])
+            following = self._bootstrapping or self._flow_tracks_on()
+            self._R_flow = self._gyro_rotation(self._last_frame_ns, t_ns) if following and self._last_frame_ns is not None else None
+            self._last_frame_ns = t_ns
+            if self._flow_tracks_on():
+                kp = self._follow_tracks(left, kp)
             if self.keyframes == self._segment_start:
                 R, t = self._initial_pose(i)
                 tracked, reason = _Tracked(R, t, np.full(0, -1, np.int64), 0, True), "first frame"
@@ -224,6 +261,9 @@ class VioEngine(StereoEngine):
                     break
                 continue
             self._lost_run = 0
+            if self._flow_tracks_on() and len(tracked.match) == len(self._local_points):
+                m = np.flatnonzero(tracked.match >= 0)
+                self._mflow = (self._local_points[m], kp.uv[tracked.match[m]])
             if reason:
                 break
             self._record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
@@ -240,6 +280,8 @@ class VioEngine(StereoEngine):
         self._initialized = False
         self._prior = None
         self._bootstrapping = True
+        self._ftracks, self._ftrack_image = FlowTracks.empty(), None
+        self._mflow = (np.zeros(0, np.int64), np.zeros((0, 2)))
         self._lost_run = 0
         self._init_status = "structure from motion: waiting for parallax (after a loss)"
         self._marginalized_before = self.keyframes
@@ -255,14 +297,8 @@ class VioEngine(StereoEngine):
         k0 = self._segment_start
         ids, uv_prev, image_prev = self._flow
         if len(ids) >= 8:
-            lk = dict(winSize=(21, 21), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
-            p0 = uv_prev.astype(np.float32).reshape(-1, 1, 2)
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, None, **lk)
-            back, st_b, _ = cv2.calcOpticalFlowPyrLK(image, image_prev, p1, None, **lk)
-            ok = (st.ravel() == 1) & (st_b.ravel() == 1) & (np.linalg.norm((back - p0).reshape(-1, 2), axis=1) < 0.5)
-            uv = p1.reshape(-1, 2)
-            ok &= cam.in_image(uv)
-            ids, uv_prev = ids[ok], uv[ok].astype(float)
+            uv, ok = follow(image_prev, image, uv_prev, cam, R_prev_cur=self._R_flow)
+            ids, uv_prev = ids[ok], uv[ok]
         self._flow = (ids, uv_prev, image)
         if len(ids) < s.init_min_matches:
             self._messages.append(f"frame {i}: {len(ids)} features followed from the first keyframe (fewer than {s.init_min_matches}); starting again from this frame")
@@ -285,6 +321,12 @@ class VioEngine(StereoEngine):
             return None
         R_w0, t_w0 = self._R_est[k0], self._t_est[k0]
         R_01 = R_10.T  # camera 1 in camera 0
+        # A rotation the gyroscope contradicts is a wrong decomposition (too little translation
+        # for the essential matrix to separate it from the rotation): wait for more parallax.
+        dt_s = (int(self.data_source.timestamps_ns[i]) - int(self._stamp[k0])) * 1e-9
+        tolerance_rad = np.radians(s.init_gyro_agreement_deg) + s.init_gyro_bias_bound_rad_s * dt_s
+        if np.linalg.norm(so3.log(R_01.T @ R_01_imu)) > tolerance_rad:
+            return None
         t_01 = -R_10.T @ t_10.ravel()
         Rs = np.stack([R_w0, R_w0 @ R_01])
         ts = np.stack([t_w0, t_w0 + R_w0 @ t_01])
@@ -421,6 +463,9 @@ class VioEngine(StereoEngine):
         obs, new_points, new_lines = self._observe_mono(k, kp, local_p, p_match, segments, local_l, l_match, bootstrap)
         status[p_match[p_match >= 0]] = POINT_TRACKED
         status[self._new_point_kp] = POINT_NEW
+        if s.flow_tracks and not self._initialized:
+            self._seed_tracks(k, kp, left)
+            self._mflow = (obs.point_id, obs.point_uv)
         self._last_kf_tracked = int(np.count_nonzero(p_match >= 0)) if k > self._segment_start + 1 else len(obs.point_id)  # map points tracked (new ones are not yet)
         timing["mapping"] = 1e3 * (time.perf_counter() - t0)
 
@@ -478,17 +523,22 @@ class VioEngine(StereoEngine):
         if bootstrap is not None:
             self._bootstrapping = False
             _, idx0, idx1, p_w, _ = bootstrap
-            new_points, fresh = self._add_points(k - 1, self._kf_features[k - 1][0], idx0, kp, idx1, p_w)
+            new_points, fresh = self._add_points(k, k - 1, self._kf_features[k - 1][0], idx0, kp, idx1, p_w)
         elif k > self._segment_start:
             # With the previous keyframes, newest first: a feature too close to its match in
             # k - 1 (parallax) may be far enough from it in an older one.
             found_ids, found_kp = [], []
+            if len(self._track_kp) and len(self._track_kp) == len(self._ftracks):
+                ids, fr = self._triangulate_tracks(k, kp, claimed)
+                claimed[fr] = True
+                found_ids.append(ids)
+                found_kp.append(fr)
             for older in range(k - 1, max(self._segment_start, k - 1 - self.settings.triangulation_keyframes) - 1, -1):
                 if older not in self._kf_features:
                     break
                 kp_prev, claimed_prev = self._kf_features[older]
                 idx0, idx1, p_w = self._triangulate_new_points(older, k, kp_prev, np.flatnonzero(~claimed_prev), kp, np.flatnonzero(~claimed))
-                ids, fr = self._add_points(older, kp_prev, idx0, kp, idx1, p_w)
+                ids, fr = self._add_points(k, older, kp_prev, idx0, kp, idx1, p_w)
                 claimed[fr] = True
                 found_ids.append(ids)
                 found_kp.append(fr)
@@ -552,35 +602,150 @@ class VioEngine(StereoEngine):
         if len(a) == 0:
             return empty
         i0, i1 = cand0[a], cand1[match[a]]
-        p_w = triangulate_two_views(x0[a, :2], x1[match[a], :2], R0, t0, R1, t1)
+        p_w, good = self._triangulate_pixels(j, k, kp0.uv[i0], kp1.uv[i1])
+        return i0[good], i1[good], p_w[good]
+
+    def _triangulate_pixels(self, j: int, k: int, uv0: np.ndarray, uv1: np.ndarray, *, min_parallax_deg: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels `uv0` of keyframe j and `uv1` (N, 2) of keyframe k triangulated (DLT) at
+        their estimated poses; returns the world points (N, 3) and which of them are in front
+        of both cameras within the depth limits, with at least `min_parallax_deg` and both
+        reprojection errors under `outlier_px`."""
+        s = self.settings
+        cam = self.camera
+        R0, t0, R1, t1 = self._R_est[j], self._t_est[j], self._R_est[k], self._t_est[k]
+        if len(uv0) == 0:
+            return np.zeros((0, 3)), np.zeros(0, bool)
+        p_w = triangulate_two_views(cam.normalize(uv0)[:, :2], cam.normalize(uv1)[:, :2], R0, t0, R1, t1)
         z0 = np.einsum("ij,nj->ni", R0.T, p_w - t0)[:, 2]
         z1 = np.einsum("ij,nj->ni", R1.T, p_w - t1)[:, 2]
         ray0 = p_w - t0
         ray1 = p_w - t1
         cos = np.sum(ray0 * ray1, axis=1) / np.maximum(np.linalg.norm(ray0, axis=1) * np.linalg.norm(ray1, axis=1), 1e-12)
         with np.errstate(invalid="ignore"):
-            good = np.all(np.isfinite(p_w), axis=1) & (z0 > s.min_depth_m) & (z1 > s.min_depth_m) & (z0 < s.max_depth_m) & (cos < np.cos(np.radians(s.min_parallax_deg)))
-            err0 = np.linalg.norm(cam.project((p_w - t0) @ R0) - kp0.uv[i0], axis=1)
-            err1 = np.linalg.norm(cam.project((p_w - t1) @ R1) - kp1.uv[i1], axis=1)
+            good = np.all(np.isfinite(p_w), axis=1) & (z0 > s.min_depth_m) & (z1 > s.min_depth_m) & (z0 < s.max_depth_m) & (cos < np.cos(np.radians(s.min_parallax_deg if min_parallax_deg is None else min_parallax_deg)))
+            err0 = np.linalg.norm(cam.project((p_w - t0) @ R0) - uv0, axis=1)
+            err1 = np.linalg.norm(cam.project((p_w - t1) @ R1) - uv1, axis=1)
             good &= (err0 < s.outlier_px) & (err1 < s.outlier_px)
-        return i0[good], i1[good], p_w[good]
+        return p_w, good
 
-    def _add_points(self, k0: int, kp0: Keypoints, idx0: np.ndarray, kp1: Keypoints, idx1: np.ndarray, p_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """New points anchored in keyframe k0 (observed there and in the new keyframe);
-        appends their observation to keyframe k0's record. Returns their ids and keypoint
-        indices in the new keyframe."""
-        P = self._points
+    # ------------------------------------------------------------------ followed features (before the initialization)
+
+    def _flow_tracks_on(self) -> bool:
+        """Whether candidate features are followed frame to frame: from the segment's first
+        map until the initialization."""
+        return self.settings.flow_tracks and not self._initialized and not self._bootstrapping and self.keyframes > self._segment_start
+
+    def _follow_tracks(self, image: np.ndarray, kp: Keypoints) -> Keypoints:
+        """The map points seen in the last frame and the candidate features followed into
+        `image`; returns `kp` with a keypoint at each followed pixel (the ORB keypoint within 2
+        px, or a new one), each one's index in `_mflow_kp` and `_track_kp`."""
+        ids, uv_map = self._mflow
+        self._mflow_kp = np.full(len(ids), -1, np.int64)
+        self._track_kp = np.full(len(self._ftracks), -1, np.int64)
+        if self._ftrack_image is not None and len(ids) + len(self._ftracks):
+            uv, ok = follow(self._ftrack_image, image, np.concatenate([uv_map, self._ftracks.uv]), self.camera, R_prev_cur=self._R_flow)
+            n = len(ids)
+            self._mflow = (ids[ok[:n]], uv[:n][ok[:n]])
+            self._ftracks = self._ftracks.followed(uv[n:], ok[n:])
+            kp, self._mflow_kp = self._with_followed_keypoints(kp, self._mflow[1], image)
+            kp, self._track_kp = self._with_followed_keypoints(kp, self._ftracks.uv, image)
+        self._ftrack_image = image
+        return kp
+
+    def _track(self, i: int, kp: Keypoints) -> _Tracked:
+        """Before the initialization the map points followed from the last frame are matches
+        too (the followed ones first, then those the projection search found for the others);
+        otherwise the stereo pipeline's tracking."""
+        result = super()._track(i, kp)
+        ids, _ = self._mflow
+        if not self._flow_tracks_on() or len(ids) == 0 or len(self._mflow_kp) != len(ids):
+            return result
+        local = self._local_points
+        where = {int(p): j for j, p in enumerate(local)}
+        match = np.full(len(local), -1, np.int64)
+        for p, j in zip(ids, self._mflow_kp):
+            if j >= 0 and int(p) in where:
+                match[where[int(p)]] = j
+        P = self._points.p_world[local]
+        m = np.flatnonzero(match >= 0)
+        pose = pnp_ransac(self.camera, P[m], kp.uv[match[m]], min_inliers=self.settings.min_tracking_inliers, seed=self.settings.seed + i)
+        if pose is None:
+            return result
+        match[m[~pose[2]]] = -1
+        if result.ok and len(result.match) == len(local):
+            used = np.zeros(len(kp.uv), bool)
+            used[match[match >= 0]] = True
+            extra = np.flatnonzero((match < 0) & (result.match >= 0))
+            extra = extra[~used[result.match[extra]]]
+            match[extra] = result.match[extra]
+        flowed = self._refine(pose[0], pose[1], P, self._points.desc[local], kp, match)
+        return flowed if flowed.ok and flowed.inliers >= result.inliers else result
+
+    def _triangulate_tracks(self, k: int, kp: Keypoints, claimed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """New points from the followed features with parallax between the keyframe that
+        detected them and keyframe k (`_triangulate_pixels`); a feature whose keypoint is
+        already claimed in either keyframe is left. Returns the new ids and their keypoint
+        indices in keyframe k."""
+        tr, j1 = self._ftracks, self._track_kp
+        cand = np.flatnonzero((j1 >= 0) & (tr.anchor < k))
+        cand = cand[~claimed[j1[cand]]]
+        _, first = np.unique(j1[cand], return_index=True)  # one track per keypoint
+        cand = cand[np.sort(first)]
+        found_ids, found_kp = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+        for k0 in np.unique(tr.anchor[cand]):
+            c = cand[tr.anchor[cand] == k0]
+            if k0 in self._kf_features:
+                c = c[~self._kf_features[k0][1][tr.anchor_kp[c]]]
+            p_w, good = self._triangulate_pixels(int(k0), k, tr.uv_anchor[c], kp.uv[j1[c]], min_parallax_deg=self.settings.flow_min_parallax_deg)
+            c = c[good]
+            if len(c) == 0:
+                continue
+            ids = self._new_points(k, int(k0), tr.uv_anchor[c], kp.descriptors[j1[c]], p_w[good])
+            if k0 in self._kf_features:
+                self._kf_features[k0][1][tr.anchor_kp[c]] = True
+            found_ids.append(ids)
+            found_kp.append(j1[c])
+        return np.concatenate(found_ids), np.concatenate(found_kp)
+
+    def _seed_tracks(self, k: int, kp: Keypoints, image: np.ndarray) -> None:
+        """After keyframe k's landmarks: the followed features that became or met a map point,
+        or that are older than `flow_max_age_keyframes` keyframes, are dropped; keyframe k's
+        unclaimed keypoints start new ones (at least `flow_min_distance_px` apart, at most
+        `flow_max_tracks`)."""
+        s = self.settings
+        claimed = self._kf_features[k][1]
+        tr, j1 = self._ftracks, self._track_kp
+        keep = (k - tr.anchor) <= s.flow_max_age_keyframes
+        if len(j1) == len(tr):
+            keep &= ~((j1 >= 0) & claimed[np.maximum(j1, 0)])
+        tr = tr.subset(keep)
+        cand = np.flatnonzero(~claimed)
+        self._ftracks = tr.seeded(k, kp.uv[cand], cand, min_distance_px=s.flow_min_distance_px, max_tracks=s.flow_max_tracks)
+        self._ftrack_image = image
+        self._track_kp = np.zeros(0, np.int64)
+
+    def _add_points(self, k: int, k0: int, kp0: Keypoints, idx0: np.ndarray, kp1: Keypoints, idx1: np.ndarray, p_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """New points of keyframe k anchored in keyframe k0 (observed there and in keyframe
+        k); appends their observation to keyframe k0's record. Returns their ids and keypoint
+        indices in keyframe k."""
         if len(idx0) == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        ids = P.add(
-            p_world=p_world, ok=np.ones(len(idx0), bool), anchor=np.full(len(idx0), k0), anchor_uv=kp0.uv[idx0], anchor_ur=np.full(len(idx0), np.nan),
-            plane=np.full(len(idx0), -1), desc=kp1.descriptors[idx1], n_kf=np.full(len(idx0), 2, np.int64),
+        ids = self._new_points(k, k0, kp0.uv[idx0], kp1.descriptors[idx1], p_world)
+        self._kf_features[k0][1][idx0] = True
+        return ids, idx1
+
+    def _new_points(self, k: int, k0: int, uv0: np.ndarray, desc: np.ndarray, p_world: np.ndarray) -> np.ndarray:
+        """Points triangulated between keyframes k0 < k, anchored in k0 at pixels `uv0` (N, 2)
+        and observed in both; their re-observations are counted from keyframe k - 1 (as for a
+        pair with the previous keyframe, whatever k0). Returns their ids."""
+        n = len(uv0)
+        ids = self._points.add(
+            p_world=p_world, ok=np.ones(n, bool), anchor=np.full(n, k0), anchor_uv=uv0, anchor_ur=np.full(n, np.nan),
+            plane=np.full(n, -1), desc=desc, n_kf=np.full(n, 2, np.int64), born=np.full(n, k - 1),
         )
         o = self._obs[k0]
-        self._obs[k0] = _KeyframeObs(np.concatenate([o.point_id, ids]), np.concatenate([o.point_uv, kp0.uv[idx0]]), np.concatenate([o.point_ur, np.full(len(ids), np.nan)]), o.line_id, o.line_uv, o.line_ruv)
-        kp_prev, claimed_prev = self._kf_features[k0]
-        claimed_prev[idx0] = True
-        return ids, idx1
+        self._obs[k0] = _KeyframeObs(np.concatenate([o.point_id, ids]), np.concatenate([o.point_uv, uv0]), np.concatenate([o.point_ur, np.full(n, np.nan)]), o.line_id, o.line_uv, o.line_ruv)
+        return ids
 
     def _new_lines(self, k: int, prev: Segments, claimed_prev: np.ndarray, cur: Segments, claimed_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Lines from LBD matches between the unclaimed segments of keyframes k-1 and k,
