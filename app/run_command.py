@@ -331,7 +331,7 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
 def vio_metrics(snapshot, frames) -> dict:  # noqa: ANN001
     """The VIO part of metrics.json: the first initialization (keyframe, time, what the
     alignment estimated and, on rendered scenes, its errors; the latest one's too, after a
-    loss VIO starts again; the gravity direction error after the
+    loss VIO starts again; the gravity direction and gyroscope bias errors after the
     refinement by the windows with IMU factors), the last keyframe's velocity and biases,
     and the scale error of the whole trajectory (the Sim(3) alignment's scale minus one, in
     percent, over the tracked frames with ground truth after the initialization)."""
@@ -366,6 +366,13 @@ def vio_metrics(snapshot, frames) -> dict:  # noqa: ANN001
         if len(tilt):
             out["gravity_error_refined_deg"] = float(tilt[0])
             out["tilt_error_median_deg"] = float(np.median(tilt))
+    if first >= 0 and imu.bias_true is not None:
+        # The gyroscope bias after the refinement likewise: the initialization keyframe's, as
+        # the windows with IMU factors left it, and the median over the keyframes since.
+        b_est, b_true = np.asarray(imu.bias)[first:, 3:], np.asarray(imu.bias_true)[first:, 3:]
+        pct = 100.0 * np.linalg.norm(b_est - b_true, axis=1) / np.maximum(np.linalg.norm(b_true, axis=1), 1e-12)
+        out["bias_gyro_error_refined_pct"] = float(pct[0])
+        out["bias_gyro_error_median_pct"] = float(np.median(pct))
     if first >= 0:
         t0 = snapshot.estimate.timestamp_ns[first]
         p_est, p_gt = np.asarray(frames.estimate.t_world_camera), np.asarray(frames.ground_truth.t_world_camera)
