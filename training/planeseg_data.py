@@ -18,12 +18,12 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 
-import cv2
 import numpy as np
 
 from backend.data.render import NON_PLANAR_ID, render_view
 from backend.data.scenes import Cylinder, Scene, Sphere, Texture, box_rectangles, facing_rectangle
 from backend.data.synthetic import CAMERA
+from backend.frontend.segmentation_learned import prepare_input
 
 INPUT_W, INPUT_H = 192, 128  # network input (the 752×480 image resized)
 OUTPUT_W, OUTPUT_H = 96, 64  # network output (half the input)
@@ -39,9 +39,14 @@ class Sample:
     labels: np.ndarray  # (OUTPUT_H, OUTPUT_W) int16
 
 
+CLAHE: dict | None = None  # set by train_planeseg.py --clahe (then written into the contract)
+
+
 def to_input(image: np.ndarray) -> np.ndarray:
-    """A full-size grey image as the network's input size (area average)."""
-    return cv2.resize(image, (INPUT_W, INPUT_H), interpolation=cv2.INTER_AREA)
+    """A full-size grey image as the network's input (uint8, the input size), prepared as
+    the runtime prepares it (`prepare_input`: CLAHE when set, then area average)."""
+    x = prepare_input(image, width=INPUT_W, height=INPUT_H, clahe=CLAHE)
+    return np.clip(np.round(x * 255.0), 0, 255).astype(np.uint8)
 
 
 def to_output_labels(labels: np.ndarray) -> np.ndarray:

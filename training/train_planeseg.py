@@ -25,6 +25,7 @@ sys.path.insert(0, str(ROOT / "training"))
 
 import numpy as np  # noqa: E402
 
+import planeseg_data  # noqa: E402
 from planeseg_data import INPUT_H, INPUT_W, OUTPUT_H, OUTPUT_W, Sample, real_samples, rendered_samples  # noqa: E402
 
 TRAIN_SEED_BASE = 1000
@@ -56,7 +57,8 @@ def export(model, path: pathlib.Path, *, meta: dict) -> None:  # noqa: ANN001
         "format": "coplanar plane-instance segmenter",
         "version": 1,
         "input": {"name": "image", "shape": [1, 1, INPUT_H, INPUT_W], "dtype": "float32", "range": [0.0, 1.0],
-                  "preprocess": "grey image resized to the input size with area averaging, divided by 255"},
+                  "preprocess": ("CLAHE, then " if meta.get("clahe") else "") + "grey image resized to the input size with area averaging, divided by 255",
+                  **({"clahe": meta["clahe"]} if meta.get("clahe") else {})},
         "outputs": {
             "planar_logit": {"shape": [1, 1, OUTPUT_H, OUTPUT_W], "meaning": "logit of 'this pixel lies on a plane'"},
             "embedding": {"shape": [1, meta["embed_dim"], OUTPUT_H, OUTPUT_W], "meaning": "per-pixel embedding, instances by mean shift"},
@@ -78,6 +80,8 @@ def main() -> int:
                    help="rooms with panels leaning against the walls (see planeseg_data.random_room); tried once "
                         "with --gamma 0.4, worse on held-out and real frames (README), so off by default")
     p.add_argument("--gamma", type=float, default=0.0, help="photometric augmentation: gamma drawn from exp(±gamma)")
+    p.add_argument("--clahe", action=argparse.BooleanOptionalAction, default=False,
+                   help="input preparation: CLAHE (clip 2, 8x8 tiles) before the area average, in training and (through the contract) at run time")
     p.add_argument("--real-every", type=int, default=1)
     p.add_argument("--real-repeat", type=int, default=2)
     p.add_argument("--epochs", type=int, default=24)
@@ -88,6 +92,7 @@ def main() -> int:
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--out", type=pathlib.Path, default=ROOT / "assets" / "planeseg.onnx")
     args = p.parse_args()
+    planeseg_data.CLAHE = {"clip_limit": 2.0, "tiles": 8} if args.clahe else None
 
     import torch
 
@@ -144,7 +149,7 @@ def main() -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "command": "python training/train_planeseg.py " + " ".join(sys.argv[1:]),
-        "seed": args.seed, "layouts": args.layouts, "leaning": args.leaning, "gamma": args.gamma, "views": args.views, "real": args.real.name if args.real and args.real.is_dir() else None,
+        "seed": args.seed, "layouts": args.layouts, "leaning": args.leaning, "gamma": args.gamma, "clahe": planeseg_data.CLAHE, "views": args.views, "real": args.real.name if args.real and args.real.is_dir() else None,
         "samples": len(samples), "epochs": args.epochs, "batch": args.batch, "lr": args.lr, "width": args.width,
         "embed_dim": EMBED_DIM, "delta_v": DELTA_V, "delta_d": DELTA_D, "device": args.device, "threads": args.threads,
         "data_s": round(t_data, 1), "train_s": round(t_train, 1), "torch": torch.__version__,

@@ -29,6 +29,18 @@ class ModelError(ValueError):
     """A model file that cannot be used (one line: the file and what is wrong)."""
 
 
+def prepare_input(image: np.ndarray, *, width: int, height: int, clahe: dict | None = None) -> np.ndarray:
+    """The network's input (height, width) float32 in [0, 1] from a grey uint8 image of any
+    size: with `clahe` (`{"clip_limit": c, "tiles": n}`, the contract's), contrast-limited
+    adaptive histogram equalization on the full image first (OpenCV; it evens out the
+    exposure and contrast that differ between rendered and real images), then area
+    averaging to the input size. Training prepares its images with this same function."""
+    if clahe is not None:
+        tiles = int(clahe["tiles"])
+        image = cv2.createCLAHE(clipLimit=float(clahe["clip_limit"]), tileGridSize=(tiles, tiles)).apply(image)
+    return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+
+
 @dataclasses.dataclass(frozen=True)
 class LearnedSegmenterSettings:
     """`bandwidth`: mean-shift radius in embedding space (None: the model's, from its
@@ -60,7 +72,10 @@ def load_contract(model: pathlib.Path) -> dict:
     try:
         contract = json.loads(path.read_text())
         _ = contract["input"]["name"], contract["input"]["shape"], contract["outputs"]["planar_logit"]["shape"], contract["outputs"]["embedding"]["shape"]
-    except (ValueError, KeyError, TypeError) as e:
+        clahe = contract["input"].get("clahe")
+        if clahe is not None and not (float(clahe["clip_limit"]) > 0 and 1 <= int(clahe["tiles"]) <= 64):
+            raise ValueError(f"input.clahe {clahe}: expected a clip_limit > 0 and 1 to 64 tiles")
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
         raise ModelError(f"{path}: not a segmenter contract ({type(e).__name__}: {e})") from None
     return contract
 
@@ -103,7 +118,7 @@ class LearnedSegmenter:
         grey uint8 image (H, W) of any size."""
         if image.ndim != 2 or image.dtype != np.uint8:
             raise ValueError(f"expected a grey uint8 (H, W) image, got {image.shape} {image.dtype}")
-        x = cv2.resize(image, (self.input_w, self.input_h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+        x = prepare_input(image, width=self.input_w, height=self.input_h, clahe=self.contract["input"].get("clahe"))
         logit, emb = self._session.run(None, {self.contract["input"]["name"]: x[None, None]})
         prob = 1.0 / (1.0 + np.exp(-logit[0, 0]))
         return prob, np.moveaxis(emb[0], 0, -1)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from backend.frontend.segmentation import NO_PLANE
-from backend.frontend.segmentation_learned import DEFAULT_MODEL, LearnedSegmenter, LearnedSegmenterSettings, ModelError, cluster_embeddings
+from backend.frontend.segmentation_learned import DEFAULT_MODEL, LearnedSegmenter, LearnedSegmenterSettings, ModelError, cluster_embeddings, prepare_input
 
 
 @pytest.fixture(scope="module")
@@ -61,6 +61,34 @@ def test_bad_model_files_give_one_line(tmp_path: pathlib.Path) -> None:
         LearnedSegmenter(settings=LearnedSegmenterSettings(model=model))
     with pytest.raises(ModelError, match="model file missing"):
         LearnedSegmenter(settings=LearnedSegmenterSettings(model=tmp_path / "none.onnx"))
+
+
+def test_the_contract_s_clahe_prepares_the_input(tmp_path: pathlib.Path) -> None:
+    """A contract with `input.clahe` equalizes the image before the area average (as the
+    training did); a bad one is one line."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    image = np.clip(rng.normal(90, 12, (480, 752)), 0, 255).astype(np.uint8)  # dim, low contrast
+    plain = prepare_input(image, width=192, height=128)
+    assert plain.shape == (128, 192) and plain.dtype == np.float32
+    assert np.allclose(plain, cv2.resize(image, (192, 128), interpolation=cv2.INTER_AREA) / 255.0)
+    equalized = prepare_input(image, width=192, height=128, clahe={"clip_limit": 2.0, "tiles": 8})
+    assert equalized.std() > 1.5 * plain.std()
+
+    model = _copy(tmp_path)
+    contract = json.loads(model.with_suffix(".json").read_text())
+    contract["input"]["clahe"] = {"clip_limit": 2.0, "tiles": 8}
+    model.with_suffix(".json").write_text(json.dumps(contract))
+    seg = LearnedSegmenter(settings=LearnedSegmenterSettings(model=model))
+    session_input = {}
+    seg._session = type("Recorder", (), {"run": lambda self, names, feed: (session_input.update(feed), [np.zeros((1, 1, 64, 96)), np.zeros((1, 4, 64, 96))])[1]})()
+    seg.predict(image)
+    assert np.allclose(session_input["image"][0, 0], equalized)
+    contract["input"]["clahe"] = {"clip_limit": -1, "tiles": 8}
+    model.with_suffix(".json").write_text(json.dumps(contract))
+    with pytest.raises(ModelError, match=r"model.json: not a segmenter contract .*input.clahe"):
+        LearnedSegmenter(settings=LearnedSegmenterSettings(model=model))
 
 
 def test_mean_shift_separates_embedding_clusters() -> None:
