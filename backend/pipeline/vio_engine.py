@@ -96,7 +96,7 @@ class VioSettings(StereoSettings):
     (`init_gyro_agreement_deg` + `init_gyro_bias_bound_rad_s` × interval); before the
     initialization, `flow_tracks` follows map points and candidate features frame to frame
     (at most `flow_max_tracks`, `flow_min_distance_px` apart, for `flow_max_age_keyframes`,
-    triangulated with `flow_min_parallax_deg`); initialization after `init_keyframes` keyframes spanning
+    triangulated with `min_parallax_deg`); initialization after `init_keyframes` keyframes spanning
     `init_min_span_s` (`alignment`: its acceptance; the scale may be 20 % uncertain, the
     windows with IMU factors refine it); the gauge prior's σ (`gauge_sigma_m`, `gauge_sigma_yaw_rad` for
     position and yaw, `gauge_sigma_tilt_rad` for roll and pitch) and the initial bias σ
@@ -135,7 +135,6 @@ class VioSettings(StereoSettings):
     flow_max_tracks: int = 300
     flow_min_distance_px: float = 20.0
     flow_max_age_keyframes: int = 20
-    flow_min_parallax_deg: float = 1.0
     alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2)
 
 
@@ -605,7 +604,7 @@ class VioEngine(StereoEngine):
         p_w, good = self._triangulate_pixels(j, k, kp0.uv[i0], kp1.uv[i1])
         return i0[good], i1[good], p_w[good]
 
-    def _triangulate_pixels(self, j: int, k: int, uv0: np.ndarray, uv1: np.ndarray, *, min_parallax_deg: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _triangulate_pixels(self, j: int, k: int, uv0: np.ndarray, uv1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels `uv0` of keyframe j and `uv1` (N, 2) of keyframe k triangulated (DLT) at
         their estimated poses; returns the world points (N, 3) and which of them are in front
         of both cameras within the depth limits, with at least `min_parallax_deg` and both
@@ -622,7 +621,7 @@ class VioEngine(StereoEngine):
         ray1 = p_w - t1
         cos = np.sum(ray0 * ray1, axis=1) / np.maximum(np.linalg.norm(ray0, axis=1) * np.linalg.norm(ray1, axis=1), 1e-12)
         with np.errstate(invalid="ignore"):
-            good = np.all(np.isfinite(p_w), axis=1) & (z0 > s.min_depth_m) & (z1 > s.min_depth_m) & (z0 < s.max_depth_m) & (cos < np.cos(np.radians(s.min_parallax_deg if min_parallax_deg is None else min_parallax_deg)))
+            good = np.all(np.isfinite(p_w), axis=1) & (z0 > s.min_depth_m) & (z1 > s.min_depth_m) & (z0 < s.max_depth_m) & (cos < np.cos(np.radians(s.min_parallax_deg)))
             err0 = np.linalg.norm(cam.project((p_w - t0) @ R0) - uv0, axis=1)
             err1 = np.linalg.norm(cam.project((p_w - t1) @ R1) - uv1, axis=1)
             good &= (err0 < s.outlier_px) & (err1 < s.outlier_px)
@@ -661,11 +660,9 @@ class VioEngine(StereoEngine):
         if not self._flow_tracks_on() or len(ids) == 0 or len(self._mflow_kp) != len(ids):
             return result
         local = self._local_points
-        where = {int(p): j for j, p in enumerate(local)}
         match = np.full(len(local), -1, np.int64)
-        for p, j in zip(ids, self._mflow_kp):
-            if j >= 0 and int(p) in where:
-                match[where[int(p)]] = j
+        _, at_local, at_flow = np.intersect1d(local, ids, assume_unique=True, return_indices=True)
+        match[at_local] = self._mflow_kp[at_flow]
         P = self._points.p_world[local]
         m = np.flatnonzero(match >= 0)
         pose = pnp_ransac(self.camera, P[m], kp.uv[match[m]], min_inliers=self.settings.min_tracking_inliers, seed=self.settings.seed + i)
@@ -696,7 +693,7 @@ class VioEngine(StereoEngine):
             c = cand[tr.anchor[cand] == k0]
             if k0 in self._kf_features:
                 c = c[~self._kf_features[k0][1][tr.anchor_kp[c]]]
-            p_w, good = self._triangulate_pixels(int(k0), k, tr.uv_anchor[c], kp.uv[j1[c]], min_parallax_deg=self.settings.flow_min_parallax_deg)
+            p_w, good = self._triangulate_pixels(int(k0), k, tr.uv_anchor[c], kp.uv[j1[c]])
             c = c[good]
             if len(c) == 0:
                 continue
