@@ -45,9 +45,9 @@ def main() -> int:
         seg.segment(image, image, None)  # type: ignore[arg-type]  # warm-up
         for _ in range(args.runs):
             t0 = time.perf_counter()
-            prob, emb = seg.predict(image)
+            prob, emb, normals = seg.predict(image)
             t1 = time.perf_counter()
-            cluster_embeddings(emb, prob >= seg.settings.planar_threshold, bandwidth=seg.bandwidth, seeds=seg.settings.seeds, sample=seg.settings.sample)
+            cluster_embeddings(seg.clustering_features(emb, normals), prob >= seg.settings.planar_threshold, bandwidth=seg.bandwidth, seeds=seg.settings.seeds, sample=seg.settings.sample)
             t2 = time.perf_counter()
             seg.segment(image, image, None)  # type: ignore[arg-type]
             total.append(1e3 * (time.perf_counter() - t2))

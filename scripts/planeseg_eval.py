@@ -1,12 +1,19 @@
 """Evaluate the learned plane-instance segmenter (assets/planeseg.onnx).
 
     .venv/bin/python scripts/planeseg_eval.py [--layouts 25] [--views 8] [--gallery docs/segmentation]
+    .venv/bin/python scripts/planeseg_eval.py --validation --model M.onnx --normal-weight W --no-readme   # choosing a setting
+
+`--validation` renders other random layouts (seed 1) and skips the real pairs: settings
+are chosen there, never on the held-out frames or the real pairs reported in the README.
 
 1. Held-out rendered frames: random room layouts from seed 0 (training uses seeds from
    1000 on) and frames of the built-in scenes (room, corridor, boxes; never trained on),
    against their exact plane ids: planar-mask IoU, matched-instance recall (ground-truth
    instances covering at least 1 % of the image matched by a predicted instance at IoU
-   >= 0.5), adjusted Rand index over the pixels planar in both, instances per frame.
+   >= 0.5), adjusted Rand index over the pixels planar in both, instances per frame; for
+   models with a normal output, the median angle between predicted and true normals
+   over the planar pixels (random rooms; the real pairs against the geometric segmenter's
+   fitted planes).
 2. The four real V1_01 pairs (never trained on): the same figures against the geometric
    (stereo) segmenter's instances, and a PNG gallery beside the geometric one; and whether
    the floor and the main walls (other instances >= 10 % of the image) of the geometric
@@ -21,6 +28,7 @@ and the planeseg-eval block of README.md.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import pathlib
 import sys
 
@@ -31,7 +39,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 import numpy as np  # noqa: E402
 
-from backend.frontend.segmentation_learned import LearnedSegmenter  # noqa: E402
+from backend.frontend.segmentation_learned import LearnedSegmenter, LearnedSegmenterSettings  # noqa: E402
 
 MIN_SHARE = 0.01
 WALL_SHARE = 0.10
@@ -72,6 +80,16 @@ def planes_found(R_world_camera: np.ndarray, reference, learned) -> list[dict]: 
     return rows
 
 
+def reference_normals(reference) -> np.ndarray:  # noqa: ANN001
+    """(3, h, w) unit normals at the network's output size of the geometric segmenter's
+    instances (`PlaneMasks` with fitted planes), turned towards the camera; zero elsewhere."""
+    from planeseg_data import normal_image, to_output_labels
+
+    small = to_output_labels(reference.labels)
+    normals = {q: (n if d > 0 else -n) for q, (n, d) in enumerate(zip(reference.normals_camera, reference.offsets_camera))}
+    return normal_image(small, normals)
+
+
 def instance_figures(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Planar IoU, matched-instance recall at IoU 0.5 and ARI of two label images (>= 0:
     instance, < 0: none) of the same size."""
@@ -108,31 +126,48 @@ def adjusted_rand(a: np.ndarray, b: np.ndarray) -> float:
     return float((s_ij - expected) / top) if top else 1.0
 
 
+def normal_error_deg(predicted: np.ndarray | None, truth: np.ndarray) -> float:
+    """Median angle (°) between predicted unit normals (h, w, 3) and true ones (3, h, w)
+    where the truth is known (non-zero); nan without a prediction or truth."""
+    known = np.linalg.norm(truth.astype(np.float64), axis=0) > 0.5
+    if predicted is None or not known.any():
+        return float("nan")
+    cos = np.einsum("hwc,chw->hw", predicted.astype(np.float64), truth.astype(np.float64))[known]
+    return float(np.degrees(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))))
+
+
 def rendered_frames(args: argparse.Namespace):  # noqa: ANN201
-    """(name, left image, full-size truth labels) of the held-out rendered frames."""
-    from planeseg_data import random_pose, random_room
+    """(name, left image, full-size truth labels, output-size true normals or None) of the
+    held-out (or, with `--validation`, the validation) rendered frames."""
+    from planeseg_data import camera_normals, normal_image, random_pose, random_room, to_output_labels
 
     from backend.data.render import NON_PLANAR_ID, render_view
     from backend.data.scenes import builtin_scene
     from backend.data.synthetic import CAMERA, SequenceSettings, SyntheticSequence
 
-    rng = np.random.default_rng([0, 0x5E6])
+    rng = np.random.default_rng([1 if args.validation else 0, 0x5E6])
     for k in range(args.layouts):
         scene = random_room(rng, f"held-out-{k}")
         for _ in range(args.views):
             R, t = random_pose(rng, scene)
             view = render_view(scene, CAMERA, R, t, gain=float(rng.uniform(0.55, 1.45)), blur_sigma_px=float(rng.uniform(0, 1.5)), noise_sigma=float(rng.uniform(0, 6)), rng=rng)
-            yield "random rooms", view.image, np.where(view.plane_id == NON_PLANAR_ID, -1, view.plane_id)
+            truth = np.where(view.plane_id == NON_PLANAR_ID, -1, view.plane_id)
+            small = to_output_labels(truth.astype(np.int16))
+            yield "validation rooms" if args.validation else "random rooms", view.image, truth, normal_image(small, camera_normals(scene, R, t))
+    if args.validation:
+        return
     for name in ("room", "corridor", "boxes"):
         seq = SyntheticSequence(builtin_scene(name), settings=SequenceSettings(duration_s=30.0, image_noise=2.0))
         for i in range(0, len(seq), len(seq) // 20):
             view = seq.views(i)[0]
-            yield name, view.image, np.where(view.plane_id == NON_PLANAR_ID, -1, view.plane_id)
+            yield name, view.image, np.where(view.plane_id == NON_PLANAR_ID, -1, view.plane_id), None
 
 
 def summarize(rows: list[dict]) -> dict[str, float]:
     keys = ("planar_iou", "recall", "ari")
     out = {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
+    errors = [r["normal_error_deg"] for r in rows if np.isfinite(r.get("normal_error_deg", np.nan))]
+    out["normal_error_deg"] = float(np.median(errors)) if errors else None  # None: a model without normals
     out["recall_pooled"] = float(sum(r["matched"] for r in rows) / max(sum(r["instances"] for r in rows), 1))
     out["frames"] = len(rows)
     return out
@@ -143,21 +178,33 @@ def main() -> int:
     parser.add_argument("--layouts", type=int, default=25)
     parser.add_argument("--views", type=int, default=8)
     parser.add_argument("--gallery", type=pathlib.Path, default=ROOT / "docs" / "segmentation")
-    parser.add_argument("--no-readme", action="store_true", help="print the table, leave README.md alone")
+    parser.add_argument("--no-readme", action="store_true", help="print the table, leave README.md and docs/pipeline/planeseg_eval.json alone")
+    parser.add_argument("--model", type=pathlib.Path, default=None, help="another .onnx file (default: the shipped one)")
+    parser.add_argument("--normal-weight", type=float, default=None, help="mean shift's normal weight (default: the contract's)")
+    parser.add_argument("--bandwidth", type=float, default=None, help="mean shift's bandwidth (default: the contract's)")
+    parser.add_argument("--validation", action="store_true", help="validation layouts (seed 1) only; no real pairs, no gallery")
     args = parser.parse_args()
-    seg = LearnedSegmenter()
+    if args.validation:
+        args.no_readme = True
+    settings = LearnedSegmenterSettings(normal_weight=args.normal_weight, bandwidth=args.bandwidth)
+    if args.model is not None:
+        settings = dataclasses.replace(settings, model=args.model)
+    seg = LearnedSegmenter(settings=settings)
     results: dict[str, dict] = {}
     by_set: dict[str, list[dict]] = {}
-    for name, image, truth in rendered_frames(args):
+    for name, image, truth, normals in rendered_frames(args):
         labels = seg.segment(image, image, None).labels  # type: ignore[arg-type]
-        by_set.setdefault(name, []).append(instance_figures(labels, truth))
+        row = instance_figures(labels, truth)
+        if normals is not None:
+            row["normal_error_deg"] = normal_error_deg(seg.predict(image)[2], normals)
+        by_set.setdefault(name, []).append(row)
     for name, rows in by_set.items():
         results[name] = summarize(rows)
     results["all rendered"] = summarize([r for rows in by_set.values() for r in rows])
     from euroc_table import publish
     from segmentation_gallery import PAIRS, overlay, real_pairs
 
-    if PAIRS.is_dir():
+    if PAIRS.is_dir() and not args.validation:
         import cv2
 
         from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
@@ -170,7 +217,9 @@ def main() -> int:
             ref_masks = geo.segment(left, right, camera)
             ref = ref_masks.labels
             masks = seg.segment(left, right, camera)
-            rows.append(instance_figures(masks.labels, ref))
+            row = instance_figures(masks.labels, ref)
+            row["normal_error_deg"] = normal_error_deg(seg.predict(left)[2], reference_normals(ref_masks))
+            rows.append(row)
             found = planes_found(R_world_camera, ref_masks, masks)
             results[f"V1_01 pair {i} planes"] = found  # type: ignore[assignment]
             cells = [f"{f['kind']} ({100 * f['share']:.0f} %): {'found' if f['found'] else 'missed'}, {100 * f['covered']:.0f} % in {f['pieces']} piece{'s' * (f['pieces'] != 1)}" for f in found]
@@ -184,14 +233,16 @@ def main() -> int:
         "trained on; 21 frames of each built-in scene, with 2 grey levels of noise); the real V1_01 pairs against the geometric "
         "segmenter's instances (not a ground truth: it splits and merges planes its own way).",
         "",
-        "| frames | n | planar IoU | recall@0.5 | pooled recall | ARI |",
-        "|---|---|---|---|---|---|",
     ]
+    with_normals = seg.has_normals  # the column only for a model with a normal output
+    lines += ["| frames | n | planar IoU | recall@0.5 | pooled recall | ARI |" + (" median normal error ° |" if with_normals else ""),
+              "|---|---|---|---|---|---|" + ("---|" if with_normals else "")]
     for name, r in results.items():
         if name.endswith(" planes"):
             continue
-        lines.append(f"| {name} | {r['frames']} | {r['planar_iou']:.3f} | {r['recall']:.3f} | {r['recall_pooled']:.3f} | {r['ari']:.3f} |")
-    if PAIRS.is_dir():
+        normal = ("–" if r["normal_error_deg"] is None else f"{r['normal_error_deg']:.1f}") + " |" if with_normals else ""
+        lines.append(f"| {name} | {r['frames']} | {r['planar_iou']:.3f} | {r['recall']:.3f} | {r['recall_pooled']:.3f} | {r['ari']:.3f} | {normal}".rstrip())
+    if PAIRS.is_dir() and not args.validation:
         lines += [
             "",
             "Real V1_01 pairs, the floor (within 5° of the vertical by the ground-truth pose) and the main walls (its other instances "
@@ -203,7 +254,8 @@ def main() -> int:
             *found_lines,
         ]
     results["model_sha256"] = seg.contract.get("sha256")
-    return publish(results, "\n".join(lines), json_name="planeseg_eval.json", block="planeseg-eval", readme=not args.no_readme)
+    # An experiment (--no-readme) only prints: the published JSON and README stay the shipped model's.
+    return publish(None if args.no_readme else results, "\n".join(lines), json_name="planeseg_eval.json", block="planeseg-eval", readme=not args.no_readme)
 
 
 if __name__ == "__main__":

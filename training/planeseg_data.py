@@ -8,9 +8,11 @@ Real samples: frames of the EuRoC MH_01 slice in `../shared/data/` with pseudo-l
 the geometric (stereo) segmenter, its instances only where they are large (confident);
 the rest of such an image is left out of the loss.
 
-A sample is the network input (`INPUT_H`, `INPUT_W`) uint8 and labels at the output
+A sample is the network input (`INPUT_H`, `INPUT_W`) uint8, labels at the output
 resolution (`OUTPUT_H`, `OUTPUT_W`) int16: an instance id >= 0, `NON_PLANAR` (-1) or
-`IGNORE` (-2, no loss).
+`IGNORE` (-2, no loss), and the planes' unit normals in the camera frame at the output
+resolution (3, `OUTPUT_H`, `OUTPUT_W`) float16, oriented towards the camera, zero where
+unknown (rendered: exact; real: the geometric segmenter's fitted planes).
 """
 
 from __future__ import annotations
@@ -35,8 +37,9 @@ _Z = np.array([0.0, 0.0, 1.0])
 
 @dataclasses.dataclass(frozen=True)
 class Sample:
-    image: np.ndarray   # (INPUT_H, INPUT_W) uint8
-    labels: np.ndarray  # (OUTPUT_H, OUTPUT_W) int16
+    image: np.ndarray    # (INPUT_H, INPUT_W) uint8
+    labels: np.ndarray   # (OUTPUT_H, OUTPUT_W) int16
+    normals: np.ndarray  # (3, OUTPUT_H, OUTPUT_W) float16, camera frame, zero where unknown
 
 
 CLAHE: dict | None = None  # set by train_planeseg.py --clahe (then written into the contract)
@@ -55,6 +58,28 @@ def to_output_labels(labels: np.ndarray) -> np.ndarray:
     ys = ((np.arange(OUTPUT_H) + 0.5) * H / OUTPUT_H).astype(int)
     xs = ((np.arange(OUTPUT_W) + 0.5) * W / OUTPUT_W).astype(int)
     return labels[np.ix_(ys, xs)].astype(np.int16)
+
+
+def normal_image(labels: np.ndarray, normals_by_id: dict[int, np.ndarray]) -> np.ndarray:
+    """(3, h, w) float16 unit normals of output-resolution `labels` from `normals_by_id`
+    (camera frame, oriented towards the camera); zero for other labels."""
+    out = np.zeros((3, *labels.shape), np.float16)
+    for pid, n in normals_by_id.items():
+        sel = labels == pid
+        out[:, sel] = np.asarray(n, np.float16)[:, None]
+    return out
+
+
+def camera_normals(scene: Scene, R_world_camera: np.ndarray, t_world_camera: np.ndarray) -> dict[int, np.ndarray]:
+    """Each plane id's unit normal in the camera frame, turned to face the camera."""
+    out: dict[int, np.ndarray] = {}
+    for rect in scene.rectangles:
+        if rect.plane_id in out:
+            continue
+        n_camera = R_world_camera.T @ rect.normal
+        p_camera = R_world_camera.T @ (rect.p0 - t_world_camera)
+        out[rect.plane_id] = -n_camera if n_camera @ p_camera > 0 else n_camera
+    return out
 
 
 def random_room(rng: np.random.Generator, name: str, *, leaning: bool = False) -> Scene:
@@ -153,8 +178,8 @@ def rendered_samples(seed: int, *, layouts: int, views_per_layout: int, leaning:
             R, t = random_pose(rng, scene)
             view = render_view(scene, CAMERA, R, t, gain=float(rng.uniform(0.55, 1.45)), blur_sigma_px=float(rng.uniform(0, 1.5)),
                                noise_sigma=float(rng.uniform(0, 6)), rng=rng)
-            labels = np.where(view.plane_id == NON_PLANAR_ID, NON_PLANAR, view.plane_id).astype(np.int16)
-            out.append(Sample(to_input(view.image), to_output_labels(labels)))
+            labels = to_output_labels(np.where(view.plane_id == NON_PLANAR_ID, NON_PLANAR, view.plane_id).astype(np.int16))
+            out.append(Sample(to_input(view.image), labels, normal_image(labels, camera_normals(scene, R, t))))
     return out
 
 
@@ -172,10 +197,14 @@ def real_samples(folder: pathlib.Path, *, every: int = 2, min_share: float = 0.0
         left, right = data.rectified_pair(i)
         masks = seg.segment(left, right, data.camera)
         labels = np.full(masks.labels.shape, IGNORE, np.int16)
+        normals: dict[int, np.ndarray] = {}
         for q in range(masks.count):
             sel = masks.labels == q
             if sel.mean() >= min_share:
                 labels[sel] = q
+                n = masks.normals_camera[q]
+                normals[q] = n if masks.offsets_camera[q] > 0 else -n  # n·X + d = 0 with d > 0: n faces the camera
         labels[masks.labels == NO_PLANE] = IGNORE
-        out.append(Sample(to_input(left), to_output_labels(labels)))
+        small = to_output_labels(labels)
+        out.append(Sample(to_input(left), small, normal_image(small, normals)))
     return out

@@ -1,13 +1,15 @@
 """The plane-instance segmentation network (training time only): a simplified PlaneAE
 (Yu et al., CVPR 2019) as the paper uses it. A shared encoder (strided convolutions down to
-1/16), a decoder with skip connections up to 1/2 of the input, and two heads on it: the
-planar-mask logit (1 channel) and a per-pixel embedding (`EMBED_DIM` channels) that the
-runtime clusters into instances by mean shift.
+1/16), a decoder with skip connections up to 1/2 of the input, and heads on it: the
+planar-mask logit (1 channel), a per-pixel embedding (`EMBED_DIM` channels) that the
+runtime clusters into instances by mean shift, and (with `normals`) the surface normal in
+the camera frame (3 channels, not normalized), as PlaneAE's per-pixel plane parameters.
 
 Loss: binary cross-entropy on the planar mask, plus the discriminative loss of De
 Brabandere et al. on the embeddings of planar pixels (pull each pixel within `DELTA_V` of
 its instance's mean, push instance means `2 DELTA_D` apart, a small pull of the means to
-the origin), as PlaneAE does.
+the origin), as PlaneAE does; with normals, plus 1 - cos between the predicted and the
+true normal (oriented towards the camera) on planar pixels whose normal is known.
 """
 
 from __future__ import annotations
@@ -30,9 +32,10 @@ def _block(c_in: int, c_out: int, stride: int) -> nn.Sequential:
 
 class PlaneNet(nn.Module):
     """Input (B, 1, H, W) grey in [0, 1] (H, W multiples of 16); outputs the planar logit
-    (B, 1, H/2, W/2) and the embedding (B, EMBED_DIM, H/2, W/2)."""
+    (B, 1, H/2, W/2), the embedding (B, EMBED_DIM, H/2, W/2) and, with `normals`, the
+    camera-frame normal (B, 3, H/2, W/2)."""
 
-    def __init__(self, width: int = 16) -> None:
+    def __init__(self, width: int = 16, *, normals: bool = False) -> None:
         super().__init__()
         w = width
         self.enc1 = _block(1, w, 2)          # 1/2
@@ -44,8 +47,9 @@ class PlaneNet(nn.Module):
         self.dec1 = _block(2 * w + w, 2 * w, 1)
         self.mask_head = nn.Conv2d(2 * w, 1, 1)
         self.embed_head = nn.Conv2d(2 * w, EMBED_DIM, 1)
+        self.normal_head = nn.Conv2d(2 * w, 3, 1) if normals else None
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         x = x - 0.5
         e1 = self.enc1(x)
         e2 = self.enc2(e1)
@@ -55,7 +59,9 @@ class PlaneNet(nn.Module):
         d3 = self.dec3(torch.cat([up(e4, e3), e3], 1))
         d2 = self.dec2(torch.cat([up(d3, e2), e2], 1))
         d1 = self.dec1(torch.cat([up(d2, e1), e1], 1))
-        return self.mask_head(d1), self.embed_head(d1)
+        if self.normal_head is None:
+            return self.mask_head(d1), self.embed_head(d1)
+        return self.mask_head(d1), self.embed_head(d1), self.normal_head(d1)
 
 
 def discriminative_loss(embedding: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
@@ -87,10 +93,28 @@ def discriminative_loss(embedding: torch.Tensor, labels: torch.Tensor) -> torch.
     return total / B
 
 
-def loss(mask_logit: torch.Tensor, embedding: torch.Tensor, labels: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
-    """BCE on pixels with a planar / non-planar label (-2: ignored) plus the embedding loss."""
+def normal_loss(normal: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean of 1 - cos between predicted (B, 3, h, w) and true unit normals over the pixels
+    whose true normal is known (non-zero)."""
+    known = target.norm(dim=1) > 0.5
+    if not known.any():
+        return normal.sum() * 0
+    cos = F.cosine_similarity(normal, target, dim=1, eps=1e-6)
+    return (1.0 - cos[known]).mean()
+
+
+def loss(mask_logit: torch.Tensor, embedding: torch.Tensor, labels: torch.Tensor, normal: torch.Tensor | None = None,
+         normal_target: torch.Tensor | None = None, *, normal_weight: float = 1.0) -> tuple[torch.Tensor, dict[str, float]]:
+    """BCE on pixels with a planar / non-planar label (-2: ignored) plus the embedding loss
+    (plus `normal_weight` times the normal loss when normals are given)."""
     known = labels != -2
     target = (labels >= 0).float()
     bce = F.binary_cross_entropy_with_logits(mask_logit[:, 0][known], target[known]) if known.any() else mask_logit.sum() * 0
     disc = discriminative_loss(embedding, labels)
-    return bce + disc, {"bce": float(bce.detach()), "disc": float(disc.detach())}
+    parts = {"bce": float(bce.detach()), "disc": float(disc.detach())}
+    total = bce + disc
+    if normal is not None and normal_target is not None:
+        nl = normal_loss(normal, normal_target)
+        total = total + normal_weight * nl
+        parts["normal"] = float(nl.detach())
+    return total, parts

@@ -50,7 +50,9 @@ def export(model, path: pathlib.Path, *, meta: dict) -> None:  # noqa: ANN001
 
     model.eval()
     dummy = torch.zeros(1, 1, INPUT_H, INPUT_W)
-    torch.onnx.export(model, (dummy,), str(path), input_names=["image"], output_names=["planar_logit", "embedding"],
+    with_normals = model.normal_head is not None
+    outputs = ["planar_logit", "embedding"] + (["normal"] if with_normals else [])
+    torch.onnx.export(model, (dummy,), str(path), input_names=["image"], output_names=outputs,
                       opset_version=17, dynamo=False, do_constant_folding=True)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     contract = {
@@ -62,8 +64,11 @@ def export(model, path: pathlib.Path, *, meta: dict) -> None:  # noqa: ANN001
         "outputs": {
             "planar_logit": {"shape": [1, 1, OUTPUT_H, OUTPUT_W], "meaning": "logit of 'this pixel lies on a plane'"},
             "embedding": {"shape": [1, meta["embed_dim"], OUTPUT_H, OUTPUT_W], "meaning": "per-pixel embedding, instances by mean shift"},
+            **({"normal": {"shape": [1, 3, OUTPUT_H, OUTPUT_W], "meaning": "surface normal, left camera frame (x right, y down, z forward), towards the camera, not normalized"}}
+               if with_normals else {}),
         },
-        "clustering": {"bandwidth": meta["delta_v"] * 2.0, "delta_v": meta["delta_v"], "delta_d": meta["delta_d"]},
+        "clustering": {"bandwidth": meta["delta_v"] * 2.0, "delta_v": meta["delta_v"], "delta_d": meta["delta_d"],
+                       **({"normal_weight": meta["cluster_normal_weight"]} if with_normals else {})},
         "sha256": digest,
         "training": meta,
     }
@@ -82,6 +87,11 @@ def main() -> int:
     p.add_argument("--gamma", type=float, default=0.0, help="photometric augmentation: gamma drawn from exp(±gamma)")
     p.add_argument("--clahe", action=argparse.BooleanOptionalAction, default=False,
                    help="input preparation: CLAHE (clip 2, 8x8 tiles) before the area average, in training and (through the contract) at run time")
+    p.add_argument("--normals", action=argparse.BooleanOptionalAction, default=False,
+                   help="a third head predicting the surface normal (camera frame), trained with 1 - cos")
+    p.add_argument("--normal-weight", type=float, default=1.0, help="weight of the normal loss")
+    p.add_argument("--cluster-normal-weight", type=float, default=1.0,
+                   help="written into the contract: unit normals scaled by this join the embedding in mean shift")
     p.add_argument("--real-every", type=int, default=1)
     p.add_argument("--real-repeat", type=int, default=2)
     p.add_argument("--epochs", type=int, default=24)
@@ -107,11 +117,12 @@ def main() -> int:
     samples = build_data(args)
     images = np.stack([s.image for s in samples])
     labels = np.stack([s.labels for s in samples]).astype(np.int64)
+    normals = np.stack([s.normals for s in samples]) if args.normals else None
     t_data = time.perf_counter() - t_start
     print(f"{len(samples)} samples in {t_data:.0f} s; training on {args.device} with {args.threads} threads", flush=True)
 
     device = torch.device(args.device)
-    model = PlaneNet(width=args.width).to(device)
+    model = PlaneNet(width=args.width, normals=args.normals).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
     steps = args.epochs * (len(samples) // args.batch)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=steps, pct_start=0.15)
@@ -119,7 +130,7 @@ def main() -> int:
     for epoch in range(args.epochs):
         model.train()
         order = rng.permutation(len(samples))
-        sums = {"bce": 0.0, "disc": 0.0}
+        sums = {"bce": 0.0, "disc": 0.0, **({"normal": 0.0} if args.normals else {})}
         n = 0
         for start in range(0, len(order) - args.batch + 1, args.batch):
             idx = order[start : start + args.batch]
@@ -127,6 +138,10 @@ def main() -> int:
             y = labels[idx].copy()
             flip = rng.random(len(idx)) < 0.5
             x[flip], y[flip] = x[flip, :, ::-1], y[flip, :, ::-1]
+            if normals is not None:
+                nrm = normals[idx].astype(np.float32)
+                nrm[flip] = nrm[flip, :, :, ::-1]
+                nrm[flip, 0] *= -1.0  # a mirrored image mirrors the camera x axis
             gain = rng.uniform(0.75, 1.25, (len(idx), 1, 1)).astype(np.float32)
             bias = rng.uniform(-0.1, 0.1, (len(idx), 1, 1)).astype(np.float32)
             x = np.clip(x * gain + bias, 0.0, 1.0)
@@ -134,8 +149,12 @@ def main() -> int:
                 x = x ** np.exp(rng.uniform(-args.gamma, args.gamma, (len(idx), 1, 1))).astype(np.float32)
             xt = torch.from_numpy(np.ascontiguousarray(x[:, None])).to(device)
             yt = torch.from_numpy(np.ascontiguousarray(y)).to(device)
-            logit, emb = model(xt)
-            total, parts = loss(logit, emb, yt)
+            if normals is None:
+                logit, emb = model(xt)
+                total, parts = loss(logit, emb, yt)
+            else:
+                logit, emb, nrm_pred = model(xt)
+                total, parts = loss(logit, emb, yt, nrm_pred, torch.from_numpy(np.ascontiguousarray(nrm)).to(device), normal_weight=args.normal_weight)
             opt.zero_grad()
             total.backward()
             opt.step()
@@ -143,7 +162,8 @@ def main() -> int:
             for k in sums:
                 sums[k] += parts[k]
             n += 1
-        print(f"epoch {epoch + 1}/{args.epochs}: bce {sums['bce'] / n:.4f} disc {sums['disc'] / n:.4f} ({time.perf_counter() - t_train:.0f} s)", flush=True)
+        figures = " ".join(f"{k} {v / n:.4f}" for k, v in sums.items())
+        print(f"epoch {epoch + 1}/{args.epochs}: {figures} ({time.perf_counter() - t_train:.0f} s)", flush=True)
     t_train = time.perf_counter() - t_train
     model = model.cpu()
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -151,6 +171,7 @@ def main() -> int:
         "command": "python training/train_planeseg.py " + " ".join(sys.argv[1:]),
         "seed": args.seed, "layouts": args.layouts, "leaning": args.leaning, "gamma": args.gamma, "clahe": planeseg_data.CLAHE, "views": args.views, "real": args.real.name if args.real and args.real.is_dir() else None,
         "samples": len(samples), "epochs": args.epochs, "batch": args.batch, "lr": args.lr, "width": args.width,
+        "normals": args.normals, "normal_weight": args.normal_weight, "cluster_normal_weight": args.cluster_normal_weight,
         "embed_dim": EMBED_DIM, "delta_v": DELTA_V, "delta_d": DELTA_D, "device": args.device, "threads": args.threads,
         "data_s": round(t_data, 1), "train_s": round(t_train, 1), "torch": torch.__version__,
     }

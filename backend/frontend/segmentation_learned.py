@@ -1,7 +1,9 @@
 """The learned plane-instance segmenter (paper §III-A, a simplified PlaneAE): a small
 encoder-decoder network, shipped as ONNX in `assets/` and run with onnxruntime, predicts a
-planar mask and a per-pixel embedding at half its input resolution; mean shift clusters
-the embeddings of planar pixels into instances.
+planar mask, a per-pixel embedding and (models with a `normal` output) the surface normal in
+the camera frame at half its input resolution; mean shift clusters the planar pixels'
+embeddings, with their unit normals scaled by the contract's `normal_weight` appended,
+into instances.
 
 Works on the left image alone (no stereo), so the VIO can use it. The model's contract
 (input and output names and shapes) lives in a JSON file beside it and is checked when the
@@ -44,13 +46,16 @@ def prepare_input(image: np.ndarray, *, width: int, height: int, clahe: dict | N
 @dataclasses.dataclass(frozen=True)
 class LearnedSegmenterSettings:
     """`bandwidth`: mean-shift radius in embedding space (None: the model's, from its
-    JSON); `planar_threshold`: probability above which a pixel is planar; `seeds`: planar
+    JSON); `normal_weight`: scale of the unit normals appended to the embedding for mean
+    shift, for models with a normal output (None: the contract's; 0: embeddings alone);
+    `planar_threshold`: probability above which a pixel is planar; `seeds`: planar
     pixels that seed the modes (a random subset, fixed by `seed`); `iterations` of mean
     shift; `min_share`: smallest instance kept, as a fraction of the image; `threads`:
     onnxruntime's intra-op threads (2 cores here: one keeps the other for tracking)."""
 
     model: pathlib.Path = DEFAULT_MODEL
     bandwidth: float | None = None
+    normal_weight: float | None = None
     planar_threshold: float = 0.5
     seeds: int = 150
     sample: int = 1500
@@ -72,6 +77,8 @@ def load_contract(model: pathlib.Path) -> dict:
     try:
         contract = json.loads(path.read_text())
         _ = contract["input"]["name"], contract["input"]["shape"], contract["outputs"]["planar_logit"]["shape"], contract["outputs"]["embedding"]["shape"]
+        if "normal" in contract["outputs"]:
+            _ = contract["outputs"]["normal"]["shape"], float(contract["clustering"]["normal_weight"])
         clahe = contract["input"].get("clahe")
         if clahe is not None and not (float(clahe["clip_limit"]) > 0 and 1 <= int(clahe["tiles"]) <= 64):
             raise ValueError(f"input.clahe {clahe}: expected a clip_limit > 0 and 1 to 64 tiles")
@@ -101,6 +108,11 @@ class LearnedSegmenter:
         _, _, self.input_h, self.input_w = self.contract["input"]["shape"]
         _, self.embed_dim, self.output_h, self.output_w = self.contract["outputs"]["embedding"]["shape"]
         self.bandwidth = float(settings.bandwidth if settings.bandwidth is not None else self.contract["clustering"]["bandwidth"])
+        self.has_normals = "normal" in self.contract["outputs"]
+        self.normal_weight = 0.0
+        if self.has_normals:
+            self.normal_weight = float(settings.normal_weight if settings.normal_weight is not None else self.contract["clustering"]["normal_weight"])
+        self._outputs = ["planar_logit", "embedding"] + (["normal"] if self.has_normals else [])
 
     def _check(self, model: pathlib.Path) -> None:
         c = self.contract
@@ -109,24 +121,36 @@ class LearnedSegmenter:
         name = c["input"]["name"]
         if list(inputs) != [name] or list(inputs[name]) != list(c["input"]["shape"]):
             raise ModelError(f"{model}: input {dict(inputs)} does not match its contract ({name}: {c['input']['shape']})")
-        for out in ("planar_logit", "embedding"):
+        for out in c["outputs"]:
             if out not in outputs or list(outputs[out]) != list(c["outputs"][out]["shape"]):
                 raise ModelError(f"{model}: output {out} is {outputs.get(out)}, its contract says {c['outputs'][out]['shape']}")
 
-    def predict(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Planar probability (h, w) and embeddings (h, w, D) at the output resolution of a
-        grey uint8 image (H, W) of any size."""
+    def predict(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Planar probability (h, w), embeddings (h, w, D) and unit normals (h, w, 3) in the
+        camera frame (None for a model without them) at the output resolution of a grey
+        uint8 image (H, W) of any size."""
         if image.ndim != 2 or image.dtype != np.uint8:
             raise ValueError(f"expected a grey uint8 (H, W) image, got {image.shape} {image.dtype}")
         x = prepare_input(image, width=self.input_w, height=self.input_h, clahe=self.contract["input"].get("clahe"))
-        logit, emb = self._session.run(None, {self.contract["input"]["name"]: x[None, None]})
+        logit, emb, *rest = self._session.run(self._outputs, {self.contract["input"]["name"]: x[None, None]})
         prob = 1.0 / (1.0 + np.exp(-logit[0, 0]))
-        return prob, np.moveaxis(emb[0], 0, -1)
+        normals = None
+        if rest:
+            n = np.moveaxis(rest[0][0], 0, -1)
+            normals = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
+        return prob, np.moveaxis(emb[0], 0, -1), normals
+
+    def clustering_features(self, embedding: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
+        """What mean shift clusters (h, w, D'): the embedding, with the unit normals scaled by
+        `normal_weight` appended when the model has them and the weight is positive."""
+        if normals is None or self.normal_weight <= 0:
+            return embedding
+        return np.concatenate([embedding, self.normal_weight * normals], axis=-1)
 
     def segment(self, left: np.ndarray, right: np.ndarray, camera: PinholeCamera) -> PlaneMasks:
         """Instance masks of the left image (`right` and `camera` are not needed)."""
-        prob, emb = self.predict(left)
-        labels = cluster_embeddings(emb, prob >= self.settings.planar_threshold, bandwidth=self.bandwidth, seeds=self.settings.seeds,
+        prob, emb, normals = self.predict(left)
+        labels = cluster_embeddings(self.clustering_features(emb, normals), prob >= self.settings.planar_threshold, bandwidth=self.bandwidth, seeds=self.settings.seeds,
                                     iterations=self.settings.iterations, min_share=self.settings.min_share, seed=self.settings.seed,
                                     sample=self.settings.sample)
         H, W = left.shape

@@ -25,10 +25,15 @@ def test_the_shipped_model_matches_its_contract(segmenter: LearnedSegmenter) -> 
 
     assert contract["sha256"] == hashlib.sha256(DEFAULT_MODEL.read_bytes()).hexdigest()
     assert DEFAULT_MODEL.stat().st_size < 8e6  # a few MB
-    prob, emb = segmenter.predict(np.full((480, 752), 128, np.uint8))
+    prob, emb, normals = segmenter.predict(np.full((480, 752), 128, np.uint8))
     assert prob.shape == tuple(contract["outputs"]["planar_logit"]["shape"][2:])
     assert emb.shape == (*prob.shape, contract["outputs"]["embedding"]["shape"][1])
     assert np.all((prob >= 0) & (prob <= 1))
+    if "normal" in contract["outputs"]:
+        assert normals is not None and normals.shape == (*prob.shape, 3)
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1.0, atol=1e-4)
+    else:
+        assert normals is None
     assert "train_planeseg.py" in contract["training"]["command"]
 
 
@@ -126,3 +131,26 @@ def test_rendered_room_walls_and_floor_are_found(segmenter: LearnedSegmenter) ->
     for i in ids[counts > 0.08 * truth.size]:
         found, overlap = np.unique(masks.labels[(view.plane_id == i) & planar], return_counts=True)
         assert overlap.max() > 0.5 * np.count_nonzero(view.plane_id == i), (i, found, overlap)
+
+
+def test_normals_split_what_the_embedding_merges(segmenter: LearnedSegmenter) -> None:
+    """A floor and a wall the embedding does not tell apart (one cluster) come out as two
+    instances once their normals (90° apart) join the clustering, and as one without."""
+    h, w = 40, 60
+    rng = np.random.default_rng(1)
+    emb = rng.normal(0, 0.1, (h, w, 4))
+    normals = np.zeros((h, w, 3))
+    normals[:20] = [0.0, 0.0, -1.0]  # the wall, facing the camera
+    normals[20:] = [0.0, -1.0, 0.0]  # the floor (camera y points down)
+    seg = segmenter  # the shipped model; the weight is set here
+    old = seg.normal_weight
+    try:
+        seg.normal_weight = 1.5
+        labels = cluster_embeddings(seg.clustering_features(emb, normals), np.ones((h, w), bool), bandwidth=1.0)
+        assert len(np.unique(labels[:20])) == 1 and len(np.unique(labels[20:])) == 1 and labels[0, 0] != labels[-1, 0]
+        seg.normal_weight = 0.0
+        labels = cluster_embeddings(seg.clustering_features(emb, normals), np.ones((h, w), bool), bandwidth=1.0)
+        assert len(np.unique(labels)) == 1
+        assert seg.clustering_features(emb, None) is emb
+    finally:
+        seg.normal_weight = old
