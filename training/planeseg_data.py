@@ -187,7 +187,6 @@ def real_samples(folder: pathlib.Path, *, every: int = 2, min_share: float = 0.0
     """Pseudo-labelled frames of a real EuRoC folder: the geometric segmenter's instances
     covering at least `min_share` of the image; everything else is IGNORE."""
     from backend.data.euroc import EurocDataset
-    from backend.frontend.segmentation import NO_PLANE
     from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
 
     data = EurocDataset(folder)
@@ -195,16 +194,39 @@ def real_samples(folder: pathlib.Path, *, every: int = 2, min_share: float = 0.0
     out = []
     for i in range(0, len(data), every):
         left, right = data.rectified_pair(i)
-        masks = seg.segment(left, right, data.camera)
-        labels = np.full(masks.labels.shape, IGNORE, np.int16)
-        normals: dict[int, np.ndarray] = {}
-        for q in range(masks.count):
-            sel = masks.labels == q
-            if sel.mean() >= min_share:
-                labels[sel] = q
-                n = masks.normals_camera[q]
-                normals[q] = n if masks.offsets_camera[q] > 0 else -n  # n·X + d = 0 with d > 0: n faces the camera
-        labels[masks.labels == NO_PLANE] = IGNORE
-        small = to_output_labels(labels)
-        out.append(Sample(to_input(left), small, normal_image(small, normals)))
+        out.append(pseudo_labelled(left, seg.segment(left, right, data.camera), min_share=min_share))
     return out
+
+
+def pseudo_labelled(left: np.ndarray, masks, *, min_share: float = 0.03) -> Sample:  # noqa: ANN001
+    """A real image with the geometric segmenter's `masks` (`PlaneMasks` with fitted planes)
+    as labels: its instances covering at least `min_share` of the image, with their normals
+    turned towards the camera; everything else is IGNORE."""
+    from backend.frontend.segmentation import NO_PLANE
+
+    labels = np.full(masks.labels.shape, IGNORE, np.int16)
+    normals: dict[int, np.ndarray] = {}
+    for q in range(masks.count):
+        sel = masks.labels == q
+        if sel.mean() >= min_share:
+            labels[sel] = q
+            n = masks.normals_camera[q]
+            normals[q] = n if masks.offsets_camera[q] > 0 else -n  # n·X + d = 0 with d > 0: n faces the camera
+    labels[masks.labels == NO_PLANE] = IGNORE
+    small = to_output_labels(labels)
+    return Sample(to_input(left), small, normal_image(small, normals))
+
+
+def v101_pair_samples(indices: list[int]) -> list[Sample]:
+    """Pseudo-labelled left images of the V1_01 test pairs `indices` (scripts/segmentation_gallery.py).
+    For the held-out check only (train on some pairs, evaluate on the others): a model
+    trained with them is never shipped, since the pairs are the real test set."""
+    import sys
+
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "scripts"))
+    from segmentation_gallery import real_pairs
+
+    from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
+
+    seg = GeometricPlaneSegmenter()
+    return [pseudo_labelled(left, seg.segment(left, right, camera)) for i, left, right, camera, _ in real_pairs() if i in indices]

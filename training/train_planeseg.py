@@ -42,6 +42,10 @@ def build_data(args: argparse.Namespace) -> list[Sample]:
         real = real_samples(args.real, every=args.real_every)
         samples += real * args.real_repeat
         print(f"  {len(real)} real pseudo-labelled frames of {args.real.name} (each used {args.real_repeat}×) ({time.perf_counter() - t0:.0f} s)", flush=True)
+    if args.v101_pairs:
+        pairs = planeseg_data.v101_pair_samples(args.v101_pairs)
+        samples += pairs * args.pairs_repeat
+        print(f"  V1_01 test pairs {args.v101_pairs} pseudo-labelled, each used {args.pairs_repeat}× (held-out check only)", flush=True)
     return samples
 
 
@@ -92,6 +96,10 @@ def main() -> int:
     p.add_argument("--normal-weight", type=float, default=1.0, help="weight of the normal loss")
     p.add_argument("--cluster-normal-weight", type=float, default=1.0,
                    help="written into the contract: unit normals scaled by this join the embedding in mean shift")
+    p.add_argument("--v101-pairs", type=lambda v: [int(x) for x in v.split(",")], default=[],
+                   help="held-out check only, never for the shipped model: also train on these V1_01 test pairs (e.g. 0,1), "
+                        "pseudo-labelled by the geometric segmenter, and evaluate on the others")
+    p.add_argument("--pairs-repeat", type=int, default=25, help="copies of each --v101-pairs image in the training set")
     p.add_argument("--real-every", type=int, default=1)
     p.add_argument("--real-repeat", type=int, default=2)
     p.add_argument("--epochs", type=int, default=24)
@@ -169,7 +177,7 @@ def main() -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "command": "python training/train_planeseg.py " + " ".join(sys.argv[1:]),
-        "seed": args.seed, "layouts": args.layouts, "leaning": args.leaning, "gamma": args.gamma, "clahe": planeseg_data.CLAHE, "views": args.views, "real": args.real.name if args.real and args.real.is_dir() else None,
+        "seed": args.seed, "layouts": args.layouts, **({"v101_pairs": args.v101_pairs, "pairs_repeat": args.pairs_repeat} if args.v101_pairs else {}), "leaning": args.leaning, "gamma": args.gamma, "clahe": planeseg_data.CLAHE, "views": args.views, "real": args.real.name if args.real and args.real.is_dir() else None,
         "samples": len(samples), "epochs": args.epochs, "batch": args.batch, "lr": args.lr, "width": args.width,
         "normals": args.normals, "normal_weight": args.normal_weight, "cluster_normal_weight": args.cluster_normal_weight,
         "embed_dim": EMBED_DIM, "delta_v": DELTA_V, "delta_d": DELTA_D, "device": args.device, "threads": args.threads,

@@ -9,7 +9,7 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "training"))
 
-from planeseg_data import INPUT_H, INPUT_W, NON_PLANAR, OUTPUT_H, OUTPUT_W, rendered_samples  # noqa: E402
+from planeseg_data import IGNORE, INPUT_H, INPUT_W, NON_PLANAR, OUTPUT_H, OUTPUT_W, pseudo_labelled, rendered_samples  # noqa: E402
 
 
 def test_rendered_samples_are_reproducible_and_labelled() -> None:
@@ -52,3 +52,25 @@ def test_rendered_normals_are_unit_face_the_camera_and_follow_the_labels() -> No
         for pid in np.unique(s.labels[planar]):
             per_plane = n[:, s.labels == pid]
             assert np.ptp(per_plane, axis=1).max() < 2e-3
+
+
+def test_pseudo_labels_keep_the_large_instances_with_normals_towards_the_camera() -> None:
+    """A real image labelled by a segmenter's masks: the instance covering 60 % of the image
+    is kept (its normal, given facing away from the camera, turned towards it); the one
+    covering 2 % and the pixels on no plane are left out of the loss (IGNORE), never taught
+    as non-planar."""
+    from backend.frontend.segmentation import NO_PLANE, PlaneMasks
+
+    labels = np.full((480, 752), NO_PLANE, np.int16)
+    labels[:288] = 0  # 60 %
+    labels[400:, :90] = 1  # 80 x 90 pixels: 2 %
+    normals = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # plane 0: z = 2 (n·X + d = 0 with d = -2): n faces away
+    masks = PlaneMasks(labels, normals, np.array([-2.0, 1.0]))
+    image = np.full((480, 752), 100, np.uint8)
+    s = pseudo_labelled(image, masks, min_share=0.03)
+    assert s.image.shape == (INPUT_H, INPUT_W) and s.labels.shape == (OUTPUT_H, OUTPUT_W)
+    assert set(np.unique(s.labels).tolist()) == {0, IGNORE}
+    assert abs(np.mean(s.labels == 0) - 0.6) < 0.05
+    n = s.normals.astype(np.float32)
+    np.testing.assert_allclose(n[:, s.labels == 0].T, np.tile([0.0, 0.0, -1.0], (np.count_nonzero(s.labels == 0), 1)), atol=1e-3)
+    assert np.all(n[:, s.labels == IGNORE] == 0.0)
