@@ -85,7 +85,7 @@ from backend.pipeline.snapshot import (
     Trajectory,
     frozen,
 )
-from backend.pipeline.tracking import match_by_projection, refine_pose, relocalize
+from backend.pipeline.tracking import match_by_projection, merge_matches, refine_pose, relocalize
 
 
 
@@ -476,19 +476,24 @@ class StereoEngine:
         seen = self._obs[self.keyframes - 1].point_id
         return np.flatnonzero(np.isin(self._local_points, seen[self._points.ok[seen]]))
 
-    def _refine(self, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, match: np.ndarray, *, widen: bool = False) -> "_Tracked":
+    def _refine(self, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, match: np.ndarray, *, widen: bool = False,
+                min_inliers: int | None = None, keep_matches: bool = False) -> "_Tracked":
         """Refine from `match`; where that leaves fewer than twice the inliers needed (always
         with `widen`: a pose from a subset of the map), search again around the refined pose
-        (`refine_radius_px`) and refine once more."""
+        (`refine_radius_px`) and refine once more. `min_inliers`: what tracking needs (default
+        `min_tracking_inliers`); `keep_matches`: the search only adds matches for points that
+        have none (to keypoints not yet used) instead of replacing them."""
         s = self.settings
         cam = self.camera
+        need = s.min_tracking_inliers if min_inliers is None else min_inliers
         for radius in (None, s.refine_radius_px):
             if radius is not None:
                 if not widen and np.count_nonzero(match >= 0) >= 2 * s.min_tracking_inliers:
                     break
-                match = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=radius, max_hamming=s.max_hamming, ratio=s.match_ratio)
+                found = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=radius, max_hamming=s.max_hamming, ratio=s.match_ratio)
+                match = merge_matches(match, found, n_keypoints=len(kp.uv)) if keep_matches else found
             m = np.flatnonzero(match >= 0)
-            if len(m) < s.min_tracking_inliers:
+            if len(m) < need:
                 return _Tracked(R, t, match, 0, False)
             ref = refine_pose(cam, R, t, P[m], kp.uv[match[m]], sigma_px=s.pixel_sigma, cauchy=s.cauchy)
             R, t = ref.R_world_camera, ref.t_world_camera
@@ -496,7 +501,7 @@ class StereoEngine:
             match = match.copy()
             match[m[~(err < s.outlier_px)]] = -1
         inliers = int(np.count_nonzero(match >= 0))
-        return _Tracked(R, t, match, inliers, inliers >= s.min_tracking_inliers)
+        return _Tracked(R, t, match, inliers, inliers >= need)
 
     def _keyframe_reason(self, i: int, kp: Keypoints, tracked: "_Tracked") -> str:
         """Why frame i becomes a keyframe ("" if it does not)."""

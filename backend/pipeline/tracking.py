@@ -225,3 +225,15 @@ def pnp_ransac(camera: PinholeCamera, p_world: np.ndarray, uv: np.ndarray, *, mi
     mask = np.zeros(len(p_world), bool)
     mask[inliers.ravel()] = True
     return R_camera_world.T, -R_camera_world.T @ tvec.ravel(), mask
+
+
+def merge_matches(match: np.ndarray, more: np.ndarray, *, n_keypoints: int) -> np.ndarray:
+    """`match` (a keypoint index per map point, -1 for none) with the matches of `more` added
+    where `match` has none and `more`'s keypoint is not already used by `match`."""
+    used = np.zeros(n_keypoints, bool)
+    used[match[match >= 0]] = True
+    extra = np.flatnonzero((match < 0) & (more >= 0))
+    extra = extra[~used[more[extra]]]
+    merged = match.copy()
+    merged[extra] = more[extra]
+    return merged

@@ -80,7 +80,7 @@ from backend.pipeline.stereo_engine import (
     _Tracked,
     _Window,
 )
-from backend.pipeline.tracking import pnp_ransac
+from backend.pipeline.tracking import merge_matches, pnp_ransac
 from backend.vio.alignment import Alignment, AlignmentSettings, align_visual_inertial
 
 
@@ -89,14 +89,19 @@ class VioSettings(StereoSettings):
     """The stereo settings that apply (tracking, culling, window, plane detection), plus the
     VIO ones (module docstring): keyframes by `keyframe_parallax_px` (rotation-compensated,
     average), `min_tracked_points`, fewer than `fallback_tracked_ratio` of the last keyframe's
-    tracked points, or `max_keyframe_interval_s`; new landmarks need
+    tracked points, or `max_keyframe_interval_s` (`init_max_keyframe_interval_s` before the
+    initialization, so that its keyframes come sooner); new landmarks need
     `epipolar_px` agreement and `min_parallax_deg` with one of the `triangulation_keyframes`
     previous keyframes (newest first); the start needs `init_parallax_px`
-    and `init_min_matches`, and an essential matrix whose rotation agrees with the gyroscope's
+    and `init_min_matches` (fewer than `init_restart_matches` followed features from the
+    first keyframe: it starts again from the frame), `init_rotation_free_parallax_px` after the best pure rotation
+    (`rotation_free_parallax_px`), and an essential matrix whose rotation agrees with the gyroscope's
     (`init_gyro_agreement_deg` + `init_gyro_bias_bound_rad_s` × interval); before the
     initialization, `flow_tracks` follows map points and candidate features frame to frame
     (at most `flow_max_tracks`, `flow_min_distance_px` apart, for `flow_max_age_keyframes`,
-    triangulated with `min_parallax_deg`); initialization after `init_keyframes` keyframes spanning
+    triangulated with `min_parallax_deg`), and a frame is tracked with `flow_min_tracking_inliers`
+    followed map points (forward-backward checked, then EPnP-RANSAC: fewer suffice than for
+    descriptor matches); initialization after `init_keyframes` keyframes spanning
     `init_min_span_s` (`alignment`: its acceptance; the scale may be 20 % uncertain, the
     windows with IMU factors refine it); the gauge prior's σ (`gauge_sigma_m`, `gauge_sigma_yaw_rad` for
     position and yaw, `gauge_sigma_tilt_rad` for roll and pitch) and the initial bias σ
@@ -114,9 +119,12 @@ class VioSettings(StereoSettings):
     epipolar_px: float = 2.0
     min_parallax_deg: float = 1.0
     init_parallax_px: float = 15.0
+    init_rotation_free_parallax_px: float = 2.0  # twice the essential matrix RANSAC threshold (1 px)
+    init_max_keyframe_interval_s: float = 0.2
     init_gyro_agreement_deg: float = 1.0
     init_gyro_bias_bound_rad_s: float = 0.1
     init_min_matches: int = 60
+    init_restart_matches: int = 120
     init_median_depth: float = 3.0
     init_keyframes: int = 8
     init_min_span_s: float = 1.0
@@ -135,6 +143,7 @@ class VioSettings(StereoSettings):
     flow_max_tracks: int = 300
     flow_min_distance_px: float = 20.0
     flow_max_age_keyframes: int = 20
+    flow_min_tracking_inliers: int = 12
     alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2)
 
 
@@ -299,8 +308,8 @@ class VioEngine(StereoEngine):
             uv, ok = follow(image_prev, image, uv_prev, cam, R_prev_cur=self._R_flow)
             ids, uv_prev = ids[ok], uv[ok]
         self._flow = (ids, uv_prev, image)
-        if len(ids) < s.init_min_matches:
-            self._messages.append(f"frame {i}: {len(ids)} features followed from the first keyframe (fewer than {s.init_min_matches}); starting again from this frame")
+        if len(ids) < s.init_restart_matches:
+            self._messages.append(f"frame {i}: {len(ids)} features followed from the first keyframe (fewer than {s.init_restart_matches}); starting again from this frame")
             self._restart_flow = True
             return None
         kp0 = self._kf_features[k0][0]
@@ -317,6 +326,11 @@ class VioEngine(StereoEngine):
         _, R_10, t_10, inl = cv2.recoverPose(E, uv0, uv1, cam.K, mask=inl)
         inl = inl.ravel() > 0
         if inl.sum() < s.init_min_matches // 2:
+            return None
+        # Parallax the best pure rotation leaves (the gyro's rotation carries its unknown bias,
+        # which alone can make 15 px over half a second): a turn, or a sideways step in front
+        # of one depth, has none, and its essential matrix gets the translation wrong.
+        if rotation_free_parallax_px(cam, uv0[inl], uv1[inl]) < s.init_rotation_free_parallax_px:
             return None
         R_w0, t_w0 = self._R_est[k0], self._t_est[k0]
         R_01 = R_10.T  # camera 1 in camera 0
@@ -405,7 +419,8 @@ class VioEngine(StereoEngine):
         if not tracked.ok:
             return ""
         k = self.keyframes - 1
-        if (int(self.data_source.timestamps_ns[i]) - int(self._stamp[k])) * 1e-9 >= s.max_keyframe_interval_s:
+        interval = s.max_keyframe_interval_s if self._initialized else s.init_max_keyframe_interval_s
+        if (int(self.data_source.timestamps_ns[i]) - int(self._stamp[k])) * 1e-9 >= interval:
             return "IMU interval"
         if tracked.inliers < s.min_tracked_points:
             return "few tracked"
@@ -665,17 +680,14 @@ class VioEngine(StereoEngine):
         match[at_local] = self._mflow_kp[at_flow]
         P = self._points.p_world[local]
         m = np.flatnonzero(match >= 0)
-        pose = pnp_ransac(self.camera, P[m], kp.uv[match[m]], min_inliers=self.settings.min_tracking_inliers, seed=self.settings.seed + i)
+        need = self.settings.flow_min_tracking_inliers
+        pose = pnp_ransac(self.camera, P[m], kp.uv[match[m]], min_inliers=need, seed=self.settings.seed + i)
         if pose is None:
             return result
         match[m[~pose[2]]] = -1
         if result.ok and len(result.match) == len(local):
-            used = np.zeros(len(kp.uv), bool)
-            used[match[match >= 0]] = True
-            extra = np.flatnonzero((match < 0) & (result.match >= 0))
-            extra = extra[~used[result.match[extra]]]
-            match[extra] = result.match[extra]
-        flowed = self._refine(pose[0], pose[1], P, self._points.desc[local], kp, match)
+            match = merge_matches(match, result.match, n_keypoints=len(kp.uv))
+        flowed = self._refine(pose[0], pose[1], P, self._points.desc[local], kp, match, min_inliers=need, keep_matches=True)
         return flowed if flowed.ok and flowed.inliers >= result.inliers else result
 
     def _triangulate_tracks(self, k: int, kp: Keypoints, claimed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1059,3 +1071,21 @@ class VioEngine(StereoEngine):
             j = int(np.argmax(gaps))
             raise DatasetError(label, f"IMU gap of {gaps[j] * 1e-6:.1f} ms after {stamps[inside][j]} ns, longer than a frame interval ({period * 1e-6:.1f} ms)")
 
+
+def rotation_free_parallax_px(camera, uv0: np.ndarray, uv1: np.ndarray) -> float:  # noqa: ANN001
+    """Median pixel distance (image 1) between `uv1` and `uv0` moved by the rotation that
+    best explains the pair alone (Kabsch on the unit rays, least squares): the parallax
+    that only a translation with depth differences makes; 0 for fewer than 3 pairs."""
+    if len(uv0) < 3:
+        return 0.0
+    b0 = camera.normalize(uv0)
+    b1 = camera.normalize(uv1)
+    b0 /= np.linalg.norm(b0, axis=1, keepdims=True)
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    U, _, Vt = np.linalg.svd(b1.T @ b0)
+    R_10 = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt  # b1 ≈ R_10 b0
+    r = b0 @ R_10.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.linalg.norm(camera.project(r) - uv1, axis=1)
+    d = d[np.isfinite(d) & (r[:, 2] > 0)]
+    return float(np.median(d)) if len(d) else 0.0

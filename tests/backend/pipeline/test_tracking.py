@@ -7,7 +7,7 @@ import pytest
 
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
-from backend.pipeline.tracking import refine_pose, reprojection
+from backend.pipeline.tracking import merge_matches, refine_pose, reprojection
 
 CAMERA = PinholeCamera(fx=460.0, fy=460.0, cx=376.0, cy=240.0, width=752, height=480)
 R_TRUE = so3.exp(np.array([0.1, -0.2, 0.05])) @ np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -114,3 +114,13 @@ def test_refine_pose_ignores_points_behind_the_camera() -> None:
     ref = refine_pose(CAMERA, *_perturbed(0.02, 0.05), p_all, uv_all)
     assert _angle(ref.R_world_camera, R_TRUE) < 1e-5
     np.testing.assert_allclose(ref.t_world_camera, T_TRUE, atol=1e-5)
+
+
+def test_merge_matches_adds_only_unmatched_points_to_unused_keypoints() -> None:
+    """Point 0 keeps its match; point 2 gets the other's keypoint 5; point 3 would take
+    keypoint 1, already point 0's, so it stays unmatched; the input is not changed."""
+    match = np.array([1, -1, -1, -1])
+    more = np.array([4, -1, 5, 1])
+    merged = merge_matches(match, more, n_keypoints=6)
+    assert merged.tolist() == [1, -1, 5, -1]
+    assert match.tolist() == [1, -1, -1, -1]
