@@ -31,6 +31,14 @@ SPEED = 2.0
 FPS = 20.0  # the rendered scenes' camera rate
 
 
+def row(r: dict, *, seconds: float) -> str:
+    """One README row from a run's record."""
+    init = r["init_time_s"]
+    return (f"| {r['seed']} | {r['scene']} | {r['variant']} | {_f(init, 2) if init is not None else 'not by ' + format(seconds, 'g') + ' s'} | {r['lost_frames']} | "
+            f"{r['restarts']} | {r['reinitializations']} | {_f(r['gravity_error_refined_deg'])} | {_f(r['bias_gyro_error_refined_pct'], 1)} | "
+            f"{_f(r['ate_after_init_cm'])} | {_f(r['ate_rmse_cm'])} |")
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", default="0,1,2")
@@ -38,31 +46,32 @@ def main() -> int:
     p.add_argument("--variants", default="P-wo,PL-w")
     p.add_argument("--seconds", type=float, default=30.0, help="frames from the start that are run (s; at most the 30 s path)")
     p.add_argument("--no-readme", action="store_true")
+    p.add_argument("--from-json", action="store_true", help="rewrite the README block from docs/vio/start_check.json without running")
     args = p.parse_args()
+    out = ROOT / "docs" / "vio" / "start_check.json"
+    runs: list[dict] = []
+    if args.from_json:
+        saved = json.loads(out.read_text())
+        args.seconds, runs = saved["seconds"], saved["runs"]
     frames = int(round(args.seconds * FPS))
-    runs, rows = [], []
-    for seed in args.seeds.split(","):
+    for seed in [] if args.from_json else args.seeds.split(","):
         for scene in args.scenes.split(","):
             for variant in args.variants.split(","):
                 m = run_one(scene, variant, "vio", duration=30.0, speed=SPEED, extra=("--seed", seed, *(("--frames", str(frames)) if args.seconds < 30.0 else ())))
                 v = m["vio"]
-                init = v["init_time_s"] if v["initialized"] else None
-                runs.append({"seed": int(seed), "scene": scene, "variant": variant, "initialized": v["initialized"], "init_time_s": init,
+                runs.append({"seed": int(seed), "scene": scene, "variant": variant, "initialized": v["initialized"], "init_time_s": v["init_time_s"] if v["initialized"] else None,
                              "lost_frames": m["lost_frames"], "reinitializations": m["reinitializations"],
                              "restarts": sum("starting again" in msg for msg in m["messages"]),
                              "ate_after_init_cm": v.get("ate_after_init_cm"), "ate_rmse_cm": m["ate_rmse_cm"],
                              "gravity_error_refined_deg": v.get("gravity_error_refined_deg"), "bias_gyro_error_refined_pct": v.get("bias_gyro_error_refined_pct")})
-                r = runs[-1]
-                rows.append(f"| {seed} | {scene} | {variant} | {_f(init, 2) if init is not None else 'not by ' + format(args.seconds, 'g') + ' s'} | {r['lost_frames']} | "
-                            f"{r['restarts']} | {r['reinitializations']} | {_f(r['gravity_error_refined_deg'])} | {_f(r['bias_gyro_error_refined_pct'], 1)} | "
-                            f"{_f(r['ate_after_init_cm'])} | {_f(r['ate_rmse_cm'])} |")
-                print(rows[-1], flush=True)
+                print(row(runs[-1], seconds=args.seconds), flush=True)
+    rows = [row(r, seconds=args.seconds) for r in runs]
     ok = sum(r["initialized"] and r["init_time_s"] <= 3.0 for r in runs)
     ates = sorted(r["ate_after_init_cm"] for r in runs if r["ate_after_init_cm"] is not None)
     mean_ate = sum(ates) / max(len(ates), 1)
     median_ate = ates[len(ates) // 2] if len(ates) % 2 else 0.5 * (ates[len(ates) // 2 - 1] + ates[len(ates) // 2]) if ates else float("nan")
-    out = ROOT / "docs" / "vio" / "start_check.json"
-    out.write_text(json.dumps({"speed": SPEED, "seconds": args.seconds, "runs": runs}, indent=2) + "\n")
+    if not args.from_json:
+        out.write_text(json.dumps({"speed": SPEED, "seconds": args.seconds, "runs": runs}, indent=2) + "\n")
     body = "\n".join([
         f"The table's paths (seed 0) and other random paths through the rendered scenes (`--seed`), the first {args.seconds:g} s at {SPEED:g}× speed, one run each "
         f"(`.venv/bin/python scripts/vio_start_check.py`): the first initialization (s), lost frames, restarts of the start "

@@ -31,7 +31,8 @@ def marginalize(problem: Problem, state: State, *, poses: np.ndarray, points: np
     ignored) of `problem` at `state`. Returns the prior on the poses, inertial states and
     planes that shared factors with them, in the problem's indices, or None when nothing is
     left to constrain. Factors that also touch a landmark that stays are left out (their
-    information is dropped, not double counted)."""
+    information is dropped, not double counted), and so are residual rows that are not
+    finite at `state`."""
     L = problem.layout
     lin = problem.linearize(state)
     J = lin.jacobian.tocsc()
@@ -53,6 +54,13 @@ def marginalize(problem: Problem, state: State, *, poses: np.ndarray, points: np
     # so a factor touching it has all its rows selected.
     Jr = J.tocsr()
     rows = np.unique(J[:, np.flatnonzero(marg)].tocoo().row)
+    # A factor linearized at a non-finite estimate (a degenerate landmark the solve left
+    # behind) carries no usable information: its rows are left out rather than poisoning
+    # the prior.
+    Js = Jr[rows].tocoo()
+    finite = np.isfinite(r[rows])
+    finite[Js.row[~np.isfinite(Js.data)]] = False
+    rows = rows[finite]
     Js = Jr[rows]
     touched = np.unique(Js.tocoo().col)
     landmark_lo, landmark_hi = L.group_start["points"], L.group_start["planes"]

@@ -969,7 +969,8 @@ class StereoEngine:
     def _cull(self, k: int) -> None:
         """Drop window observations whose error stays above `outlier_px` after the solve;
         remove landmarks whose anchor view is such an outlier, that lie behind their anchor
-        or beyond `max_depth_m`, or that too few keyframes re-observed."""
+        or beyond `max_depth_m` (a point; a line: its nearest point, or not finite), or that
+        too few keyframes re-observed."""
         s = self.settings
         cam = self.camera
         P, Lm = self._points, self._lines
@@ -1000,6 +1001,13 @@ class StereoEngine:
         stale = (P.born[ids] <= k - s.cull_after_keyframes) & (a >= self._segment_start) & (P.n_kf[ids] < s.min_keyframe_observations)
         bad_p[ids[stale]] = True
         ids_l = np.flatnonzero(Lm.ok[:])
+        # Lines as points: their nearest point to the anchor camera within the depth range
+        # (a solve can push a line weakly seen to infinity, where its coordinates overflow).
+        a_l = Lm.anchor[ids_l]
+        with np.errstate(over="ignore", invalid="ignore"):
+            m_c, v_c = line_geo.to_camera(Lm.m[ids_l], Lm.v[ids_l], self._R_est[a_l], self._t_est[a_l])
+            reach = np.linalg.norm(line_geo.closest_point_to_origin(m_c, v_c), axis=1)
+        bad_l[ids_l[~(reach < 2.0 * s.max_depth_m)]] = True
         stale_l = (Lm.born[ids_l] <= k - s.cull_after_keyframes) & (Lm.anchor[ids_l] >= self._segment_start) & (Lm.n_kf[ids_l] < s.min_keyframe_observations)
         bad_l[ids_l[stale_l]] = True
         P.ok[np.flatnonzero(bad_p)] = False

@@ -202,3 +202,20 @@ def test_marginalizing_at_the_optimum_keeps_the_solution_and_the_marginal_covari
     solved, _ = optimize(problem, start, method="lm", max_iterations=50)
     np.testing.assert_allclose(solved.poses.t_world_camera, state.poses.t_world_camera[keep_kf], atol=1e-6)
     np.testing.assert_allclose(solved.velocity, state.velocity[keep_kf], atol=1e-5)
+
+
+def test_marginalizing_leaves_out_a_landmark_with_a_non_finite_estimate() -> None:
+    """A point whose estimate a solve left non-finite (degenerate geometry) must not make
+    the marginalization fail or poison the prior: its factors are left out, so the prior is
+    the one of the same window without that point's observations."""
+    data, _ = _vio_data(seed=4, n_kf=6)
+    full = build_problem(data, "P-wo")
+    state, _ = optimize(full, method="lm", max_iterations=50)
+    all_points = np.arange(len(data.point_anchor))
+    broken = dataclasses.replace(state, rho=np.where(all_points == 3, np.nan, state.rho))
+    prior = marginalize(full, broken, poses=np.array([0]), points=all_points)
+    assert prior is not None and np.all(np.isfinite(prior.A)) and np.all(np.isfinite(prior.b))
+    without = build_problem(dataclasses.replace(data, point_obs=data.point_obs.select(data.point_obs.landmark != 3)), "P-wo")
+    reference = marginalize(without, state, poses=np.array([0]), points=all_points)
+    np.testing.assert_allclose(prior.A.T @ prior.A, reference.A.T @ reference.A, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(prior.A.T @ prior.b, reference.A.T @ reference.b, rtol=1e-9, atol=1e-9)
