@@ -159,8 +159,10 @@ def test_plots_change_with_the_slider_and_keys_step_and_scrub(browser, debugger)
     page.get_by_role("tab", name="Hessian").click()
     page.get_by_role("button", name="Open the Hessians large").click()
     page.get_by_role("tab", name="Large view").wait_for()
-    widths = page.evaluate("() => [...document.querySelectorAll('img')].map(i => i.naturalWidth)")
-    assert widths.count(max(widths)) >= 2  # the comparison twice: in its tab and in the large view
+    # The comparison twice, in its tab and in the large view (whose image loads after the
+    # view opens: wait for it rather than read the widths at once).
+    page.wait_for_function("() => { const w = [...document.querySelectorAll('img')].map(i => i.naturalWidth); "
+                           "return w.filter(x => x === Math.max(...w)).length >= 2; }", timeout=10_000)
     page.get_by_role("button", name="Close").click()
     page.get_by_role("tab", name="Large view").wait_for(state="detached")
 

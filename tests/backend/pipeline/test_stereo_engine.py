@@ -233,3 +233,27 @@ def test_frame_trajectory_follows_the_reference_keyframes() -> None:
     np.testing.assert_allclose(rel_final[1], rel_early[1], atol=1e-9)
     R = est.R_world_camera
     np.testing.assert_allclose(np.einsum("nki,nkj->nij", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+
+
+def test_lines_out_of_range_or_not_finite_are_culled() -> None:
+    """A line a solve pushed to infinity (its nearest point to the anchor camera 100 m away,
+    or its coordinates overflowed) is removed at the next culling, also when no keyframe of
+    the window observes it (no reprojection test reaches it); the others stay."""
+    engine = StereoEngine(_sequence(8.0), settings=StereoSettings(variant="PL-w", image_scale=None, hessian=False))
+    _run(engine)
+    k = engine.keyframes - 1
+    w0, _ = engine._window_range(k)
+    Lm = engine._lines
+    in_window = np.unique(np.concatenate([engine._obs[j].line_id for j in range(w0, k + 1)]))
+    ids = np.setdiff1d(np.flatnonzero(Lm.ok[:]), in_window)
+    assert len(ids) >= 3
+    far, broken, kept = ids[:3]
+    c = engine._t_est[Lm.anchor[far]]
+    v = Lm.v[far] / np.linalg.norm(Lm.v[far])
+    away = np.cross(v, [0.0, 0.0, 1.0] if abs(v[2]) < 0.9 else [1.0, 0.0, 0.0])
+    p = c + 100.0 * away / np.linalg.norm(away)  # a point of the line 100 m from the anchor camera
+    Lm.m[far], Lm.v[far] = np.cross(p, v), v
+    Lm.m[broken] = np.array([np.inf, 0.0, np.nan])
+    engine._cull(k)
+    assert not Lm.ok[far] and not Lm.ok[broken]
+    assert Lm.ok[kept]
