@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import pathlib
+import statistics
 import sys
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -67,9 +68,8 @@ def main() -> int:
                 print(row(runs[-1], seconds=args.seconds), flush=True)
     rows = [row(r, seconds=args.seconds) for r in runs]
     ok = sum(r["initialized"] and r["init_time_s"] <= 3.0 for r in runs)
-    ates = sorted(r["ate_after_init_cm"] for r in runs if r["ate_after_init_cm"] is not None)
-    mean_ate = sum(ates) / max(len(ates), 1)
-    median_ate = ates[len(ates) // 2] if len(ates) % 2 else 0.5 * (ates[len(ates) // 2 - 1] + ates[len(ates) // 2]) if ates else float("nan")
+    ates = [r["ate_after_init_cm"] for r in runs if r["ate_after_init_cm"] is not None]
+    mean_ate, median_ate = (statistics.mean(ates), statistics.median(ates)) if ates else (float("nan"), float("nan"))
     if not args.from_json:
         out.write_text(json.dumps({"speed": SPEED, "seconds": args.seconds, "runs": runs}, indent=2) + "\n")
     body = "\n".join([

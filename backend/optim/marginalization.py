@@ -57,11 +57,11 @@ def marginalize(problem: Problem, state: State, *, poses: np.ndarray, points: np
     # A factor linearized at a non-finite estimate (a degenerate landmark the solve left
     # behind) carries no usable information: its rows are left out rather than poisoning
     # the prior.
-    Js = Jr[rows].tocoo()
-    finite = np.isfinite(r[rows])
-    finite[Js.row[~np.isfinite(Js.data)]] = False
-    rows = rows[finite]
     Js = Jr[rows]
+    finite = np.isfinite(r[rows])
+    coo = Js.tocoo()
+    finite[coo.row[~np.isfinite(coo.data)]] = False
+    rows, Js = rows[finite], Js[finite]
     touched = np.unique(Js.tocoo().col)
     landmark_lo, landmark_hi = L.group_start["points"], L.group_start["planes"]
     kept_landmark = touched[(touched >= landmark_lo) & (touched < landmark_hi) & ~marg[touched]]

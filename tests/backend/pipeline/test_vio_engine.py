@@ -22,7 +22,7 @@ def _views(R_10: np.ndarray, t_10: np.ndarray, depth: tuple[float, float], rng: 
 
 def test_a_turn_has_no_rotation_free_parallax_and_a_step_with_depth_has() -> None:
     """A 20° turn moves the pixels by a hundred and more, all of it explained by a rotation;
-    a 10 cm sideways step with points between 1 and 4 m leaves parallax; the same step in
+    a 10 cm sideways step with points between 1 and 4 m leaves parallax; the same step
     in front of a wall at one depth is mostly a rotation in disguise (little left)."""
     rng = np.random.default_rng(0)
     turn = so3.exp(np.radians([3.0, 20.0, 2.0]))
