@@ -33,7 +33,10 @@ from backend.optim.problem import VARIANTS, parse_variant
 from backend.pipeline.engine import Engine, EndOfSequence
 from backend.pipeline.snapshot import Snapshot
 from viewer import images, panels
+from viewer.access import AccessSettings
+from viewer.commands import Command, CommandQueue
 from viewer.framing import follow_pose, framing_pose, snapshot_bounds
+from viewer.guard import start_server
 from viewer.history import SnapshotHistory
 from viewer.plots import plots_image
 from viewer.scene import SceneView
@@ -72,14 +75,19 @@ class ViewerSettings:
 class Debugger:
     """Serve `engine` on `host:port` until :meth:`stop`."""
 
-    def __init__(self, engine: Engine, *, host: str = "127.0.0.1", port: int = 8080, settings: ViewerSettings = ViewerSettings()) -> None:
+    def __init__(
+        self, engine: Engine, *, host: str = "127.0.0.1", port: int = 8080, settings: ViewerSettings = ViewerSettings(), access: AccessSettings = AccessSettings()
+    ) -> None:
         self.engine = engine
         self.settings = settings
-        self.server = viser.ViserServer(host=host, port=port, label="coplanar")
+        self.access = access
+        # Only this debugger's own pages connect, and only the messages its page sends reach
+        # it, with checked values (viewer/guard.py).
+        self.server, self.guard = start_server(host=host, port=port, access=access, label="coplanar")
         self.port = self.server.get_port()
         self.history = SnapshotHistory(settings.history)
         self._shown: Snapshot | None = None
-        self._commands: queue.Queue[tuple[str, object]] = queue.Queue()
+        self._commands = CommandQueue()
         self._playing = threading.Event()
         self._stopped = threading.Event()
         self.busy = threading.Event()
@@ -116,7 +124,7 @@ class Debugger:
 
     def _build_gui(self) -> None:
         gui = self.server.gui
-        gui.configure_theme(control_width="large", show_share_button=False)
+        gui.configure_theme(control_width="large", show_share_button=self.access.share)
         gui.main_panel.dock_right()
         self.status = gui.add_markdown(f"**{self.engine.source}**: ready, press Step or Play")
         with gui.add_folder("Run"):
@@ -195,32 +203,32 @@ class Debugger:
 
     def _connect_callbacks(self) -> None:
         gui = self.server.gui
-        self.step_button.on_click(lambda _: self._commands.put(("step", None)))
-        self.reset_button.on_click(lambda _: self._commands.put(("reset", None)))
-        self.all_button.on_click(lambda _: self._commands.put(("all_variants", None)))
+        self.step_button.on_click(lambda _: self._enqueue(Command.STEP))
+        self.reset_button.on_click(lambda _: self._enqueue(Command.RESET))
+        self.all_button.on_click(lambda _: self._enqueue(Command.ALL_VARIANTS))
 
         @self.variant.on_update
         def _(event: viser.GuiEvent) -> None:
             if event.client is not None:
-                self._commands.put(("variant", self.variant.value))
+                self._enqueue(Command.VARIANT, self.variant.value)
 
         if self.segmenter is not None:
             @self.segmenter.on_update
             def _(event: viser.GuiEvent) -> None:
                 if event.client is not None:
-                    self._commands.put(("segmenter", self.segmenter.value))
+                    self._enqueue(Command.SEGMENTER, self.segmenter.value)
 
         @self.ab_variant.on_update
         def _(event: viser.GuiEvent) -> None:
             if event.client is not None:
-                self._commands.put(("ab", self.ab_variant.value))
+                self._enqueue(Command.AB, self.ab_variant.value)
 
         @self.play.on_update
         def _(event: viser.GuiEvent) -> None:
             if self.play.value:
                 self._play_times.clear()
                 self._playing.set()
-                self._commands.put(("wake", None))
+                self._enqueue(Command.WAKE)
             else:
                 self._playing.clear()
                 self.achieved.value = "–"
@@ -230,7 +238,7 @@ class Debugger:
             if event.client is not None:  # a user scrubs: stop playing, or the next step jumps back
                 if self.play.value:
                     self.play.value = False
-                self._commands.put(("show", int(self.slider.value)))
+                self._enqueue(Command.SHOW, int(self.slider.value))
 
         for name, box in self.layer_boxes.items():
             box.on_update(self._layer_callback(name, box))
@@ -248,14 +256,14 @@ class Debugger:
         self.export_files.on_click(lambda event: self._export(event.client, "files"))
         self.export_trajectory.on_click(lambda event: self._export(event.client, "trajectory"))
         self.export_keyframes.on_click(lambda event: self._export(event.client, "keyframes"))
-        self.compare_box.on_update(lambda _: self._commands.put(("compare", None)))
+        self.compare_box.on_update(lambda _: self._enqueue(Command.COMPARE))
         self.enlarge_image.on_click(lambda event: self._enlarge(event.client, "keyframe"))
         self.enlarge_hessian.on_click(lambda event: self._enlarge(event.client, "hessian"))
         self.plots_box.on_update(lambda _: self._request_plots())
 
         # Keyboard shortcuts (viser's command palette binds them for every tab).
         gui.add_command("Play / pause", hotkey="space").on_trigger(lambda _: setattr(self.play, "value", not self.play.value))
-        gui.add_command("Step", hotkey="arrowright").on_trigger(lambda _: self._commands.put(("step", None)))
+        gui.add_command("Step", hotkey="arrowright").on_trigger(lambda _: self._enqueue(Command.STEP))
         gui.add_command("Scrub back", hotkey="arrowleft", modifier="shift").on_trigger(lambda _: self._scrub(-1))
         gui.add_command("Scrub forward", hotkey="arrowright", modifier="shift").on_trigger(lambda _: self._scrub(+1))
         gui.add_command("Frame all", hotkey="F").on_trigger(lambda event: self._frame(event.client, keep_direction=True))
@@ -274,7 +282,7 @@ class Debugger:
             self.play.value = False
         value = int(np.clip(int(self.slider.value) + delta, self.slider.min, self.slider.max))
         self.slider.value = value
-        self._commands.put(("show", value))
+        self._enqueue(Command.SHOW, value)
 
     # ------------------------------------------------------------------ status
 
@@ -321,9 +329,9 @@ class Debugger:
                 command, arg = self._commands.get(timeout=timeout)
                 from_timer = False
             except queue.Empty:
-                command, arg = ("step", None) if self._playing.is_set() else ("wake", None)
+                command, arg = (Command.STEP if self._playing.is_set() else Command.WAKE), None
                 from_timer = True
-            if command == "stop":
+            if command is Command.STOP:
                 return
             self._working.set()
             try:
@@ -341,25 +349,25 @@ class Debugger:
                 if not from_timer:
                     self._commands.task_done()
 
-    def _execute(self, command: str, arg: object) -> None:
-        if command == "step":
+    def _execute(self, command: Command, arg: object) -> None:
+        if command is Command.STEP:
             self._step()
-        elif command == "variant":
+        elif command is Command.VARIANT:
             self._switch_variant(str(arg))
-        elif command == "all_variants":
+        elif command is Command.ALL_VARIANTS:
             self._all_variants()
-        elif command == "ab":
+        elif command is Command.AB:
             self._set_ab(str(arg))
-        elif command == "reset":
+        elif command is Command.RESET:
             self._reset()
-        elif command == "show":
-            keyframe = int(arg)
+        elif command is Command.SHOW:
+            keyframe = int(arg)  # type: ignore[call-overload]
             snapshot = self.history.get(keyframe, self.engine.variant)
             if snapshot is not None:
                 self._show(snapshot)
-        elif command == "compare":
+        elif command is Command.COMPARE:
             self._update_compare()
-        elif command == "segmenter":
+        elif command is Command.SEGMENTER:
             self._set_segmenter(str(arg))
 
     def _step(self) -> None:
@@ -659,16 +667,22 @@ class Debugger:
         self.server.initial_camera.position = position  # also viser's own "reset view"
         self.server.initial_camera.look_at = look_at
         for client_id, client in self.server.get_clients().items():
-            if not _has_camera(client):
-                continue  # no camera reported yet: framed when it is (_on_connect)
-            if self.follow.value:
-                self._follow(client, snapshot)
-                continue
-            last = self._auto_view.get(client_id, "never")
-            if isinstance(last, str) or (last is not None and self._view_unchanged(client, last)):
-                self._frame(client, keep_direction=False)
-            else:
-                self._auto_view[client_id] = None
+            try:
+                self._update_view(client_id, client, snapshot)
+            except Exception as e:  # noqa: BLE001 - one tab's view must never stop the step for every tab
+                log.warning("view of client %s not updated: %s: %s", client_id, type(e).__name__, e)
+
+    def _update_view(self, client_id: int, client: viser.ClientHandle, snapshot: Snapshot) -> None:
+        if not _has_camera(client):
+            return  # no camera reported yet: framed when it is (_on_connect)
+        if self.follow.value:
+            self._follow(client, snapshot)
+            return
+        last = self._auto_view.get(client_id, "never")
+        if isinstance(last, str) or (last is not None and self._view_unchanged(client, last)):
+            self._frame(client, keep_direction=False)
+        else:
+            self._auto_view[client_id] = None
 
     @staticmethod
     def _view_unchanged(client: viser.ClientHandle, view: tuple[np.ndarray, np.ndarray, float, float]) -> bool:
@@ -770,18 +784,19 @@ class Debugger:
 
     # ------------------------------------------------------------------ control
 
-    def submit(self, command: str, arg: object = None) -> None:
-        """Queue a command as the GUI would ("step", "reset", "variant", "show", "ab",
-        "all_variants")."""
-        self._commands.put((command, arg))
+    def submit(self, command: Command | str, arg: object = None) -> None:
+        """Queue a command ("step", "reset", "variant", "show", "ab", "all_variants", ...);
+        unlike the GUI's, submitted commands do not coalesce: each one runs."""
+        self._commands.put(command, arg)
+
+    def _enqueue(self, command: Command, arg: object = None) -> None:
+        """Queue a command from a browser: a burst coalesces (viewer/commands.py)."""
+        self._commands.put(command, arg, coalesce=True)
 
     def wait_idle(self, timeout: float = 60.0) -> None:
         """Block until every queued command has run (for tests and benchmarks)."""
-        deadline = time.monotonic() + timeout
-        while self._commands.unfinished_tasks:
-            if time.monotonic() > deadline:
-                raise TimeoutError("the engine did not become idle")
-            time.sleep(0.005)
+        if not self._commands.wait_done(timeout):
+            raise TimeoutError("the engine did not become idle")
 
     @property
     def shown(self) -> Snapshot | None:
@@ -791,7 +806,7 @@ class Debugger:
     def stop(self) -> None:
         self._stopped.set()
         self._playing.clear()
-        self._commands.put(("stop", None))
+        self._commands.put(Command.STOP)
         self._worker.join(timeout=10.0)
         self._plot_event.set()
         self._plotter.join(timeout=5.0)
