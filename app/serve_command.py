@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import threading
 
 DEFAULT_DURATION_S = 60.0
@@ -15,8 +16,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("serve", help="start the debugger (open the printed address in a browser)")
     add_source_arguments(p, duration_default=DEFAULT_DURATION_S)
     p.add_argument("--variant", default="PL-w", choices=VARIANTS, help="parametrization to start with (default PL-w)")
-    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
-    p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only; another address warns)")
+    p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0: any free one; a port in use is an error)")
+    p.add_argument(
+        "--allow-origin", action="append", default=[], metavar="URL",
+        help="also admit pages of this origin, e.g. https://slam.lab.example behind a reverse proxy (repeatable; "
+        "by default only the debugger's own page connects)",
+    )
+    p.add_argument("--share", action="store_true", help="show viser's share button: a public address through viser's relay (off: share requests are dropped)")
     p.add_argument("--history", type=int, default=500, help="snapshots kept for the keyframe slider (default 500)")
     p.add_argument("--play", action="store_true", help="start playing at once")
     p.set_defaults(run=run)
@@ -49,17 +56,48 @@ def check_bindable(host: str, port: int) -> None:
             raise UsageError(f"cannot serve on {host}:{port}: {e.strerror or e}") from None
 
 
+def access_settings(args: argparse.Namespace):  # noqa: ANN201
+    """The server's AccessSettings from `--allow-origin` and `--share`; UsageError for an
+    origin that is not http(s)://HOST[:PORT]."""
+    from app.cli import UsageError
+    from viewer.access import AccessSettings, OriginError
+
+    try:
+        return AccessSettings(allowed_origins=tuple(args.allow_origin), share=args.share)
+    except OriginError as e:
+        raise UsageError(f"--allow-origin {e}") from None
+
+
+def exposure_warnings(args: argparse.Namespace) -> list[str]:
+    """One line per way the options expose the debugger beyond this machine's own pages."""
+    from viewer.access import is_loopback_bind
+
+    warnings = []
+    if not is_loopback_bind(args.host):
+        where = "every network interface" if args.host.strip("[]") in ("0.0.0.0", "::", "") else "a network address"
+        warnings.append(
+            f"warning: --host {args.host} serves the debugger on {where}: anyone who can reach port {args.port} can drive it and "
+            "download the map (the default 127.0.0.1 and an SSH tunnel keep it to you)"
+        )
+    if args.share:
+        warnings.append("warning: --share: any open tab can publish the debugger on a public address through viser's relay; anyone with the link can drive it and download the map")
+    return warnings
+
+
 def run(args: argparse.Namespace) -> int:
     from app.cli import UsageError
 
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port {args.port}: not a port number")
+    access = access_settings(args)
     check_bindable(args.host, args.port)  # the server binds in a thread of its own, where a failure would go unseen
     engine = build_engine(args)
     from viewer.app import Debugger, ViewerSettings
 
+    for line in exposure_warnings(args):
+        print(line, file=sys.stderr, flush=True)
     try:
-        debugger = Debugger(engine, host=args.host, port=args.port, settings=ViewerSettings(history=args.history))
+        debugger = Debugger(engine, host=args.host, port=args.port, settings=ViewerSettings(history=args.history), access=access)
     except OSError as e:
         raise UsageError(f"cannot serve on {args.host}:{args.port}: {e.strerror or e}") from None
     print(f"coplanar debugger: http://{args.host}:{debugger.port} ({engine.source}); Ctrl-C stops", flush=True)

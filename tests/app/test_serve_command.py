@@ -63,6 +63,10 @@ BAD_INPUT = {
     "host-invalid": (["--scene", "mc-a", "--host", "999.1.1.1"], ["--host 999.1.1.1", "not an address of this machine"]),
     "host-unresolvable": (["--scene", "mc-a", "--host", "no-such-host.invalid"], ["--host no-such-host.invalid"]),
     "host-foreign": (["--scene", "mc-a", "--host", "192.0.2.1"], ["cannot serve on 192.0.2.1", "Cannot assign requested address"]),
+    "allow-origin-path": (["--scene", "mc-a", "--allow-origin", "https://lab.example/app"], ["--allow-origin", "https://lab.example/app", "no path"]),
+    "allow-origin-scheme": (["--scene", "mc-a", "--allow-origin", "ftp://lab.example"], ["--allow-origin", "ftp://lab.example", "not an origin"]),
+    "allow-origin-bare": (["--scene", "mc-a", "--allow-origin", "lab.example"], ["--allow-origin", "lab.example"]),
+    "allow-origin-port": (["--scene", "mc-a", "--allow-origin", "http://lab.example:99999"], ["--allow-origin", "bad port"]),
 }
 
 
@@ -161,3 +165,49 @@ def test_a_port_in_use_is_one_line_at_once(capsys: pytest.CaptureFixture[str]) -
     out, err = capsys.readouterr()
     assert rc == 2 and out == ""
     _assert_one_error_line(err, [f"cannot serve on 127.0.0.1:{port}", "Address already in use"])
+    with pytest.raises(SystemExit):  # and the help says so (it used to promise the next free port)
+        cli.main(["serve", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "a port in use is an error" in help_text and "next free" not in help_text
+
+
+class _Started(Exception):
+    pass
+
+
+def _serve_until_the_server_starts(monkeypatch: pytest.MonkeyPatch, argv: list[str]) -> dict[str, object]:
+    """Run `serve ARGV` up to the Debugger's construction; what it was given."""
+    given: dict[str, object] = {}
+
+    def record(engine: object, **kwargs: object) -> None:
+        given.update(kwargs)
+        raise _Started
+
+    monkeypatch.setattr(viewer.app, "Debugger", record)
+    with pytest.raises(_Started):
+        cli.main(["serve", "--scene", "mc-a", "--port", "0", *argv])
+    return given
+
+
+@pytest.mark.parametrize("host", ["0.0.0.0", "::"])
+def test_serving_on_every_interface_warns_before_it_starts(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], host: str) -> None:
+    given = _serve_until_the_server_starts(monkeypatch, ["--host", host])
+    assert given["host"] == host
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"warning: --host {host} serves the debugger on every network interface")
+
+
+def test_the_default_host_serves_quietly_and_admits_no_other_origin(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    from viewer.access import AccessSettings
+
+    given = _serve_until_the_server_starts(monkeypatch, [])
+    assert given["host"] == "127.0.0.1" and given["access"] == AccessSettings()
+    assert capsys.readouterr().err == ""
+
+
+def test_allow_origin_and_share_reach_the_server(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    given = _serve_until_the_server_starts(monkeypatch, ["--allow-origin", "HTTPS://Lab.Example:443/", "--allow-origin", "http://10.0.0.5:9000", "--share"])
+    access = given["access"]
+    assert access.allowed_origins == ("https://lab.example", "http://10.0.0.5:9000") and access.share  # type: ignore[attr-defined]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("warning: --share:")
