@@ -37,6 +37,23 @@ def browser() -> Iterator[object]:
         b.close()
 
 
+_started: list[object] = []  # the debuggers a test started, checked after it (nothing_refused)
+
+
+@pytest.fixture(autouse=True)
+def nothing_refused(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A browser is the debugger's own page: every message it sends in a user's whole
+    session must pass the guard (viewer/inbound.py), or the guard is refusing a real use.
+    Tests marked `hostile_page` open other pages too, whose refused handshakes they check."""
+    _started.clear()
+    yield
+    hostile = request.node.get_closest_marker("hostile_page") is not None
+    for d in _started:
+        figures = d.guard.figures()  # type: ignore[attr-defined]
+        assert figures["refused"] == 0 and (hostile or figures["handshakes_refused"] == 0), figures
+    _started.clear()
+
+
 def start_debugger(*, sequence: str = "a", **engine_options: object):  # noqa: ANN201
     """A debugger on a free port over the Monte-Carlo engine, with the HDRI off (it stalls
     software rendering)."""
@@ -45,6 +62,7 @@ def start_debugger(*, sequence: str = "a", **engine_options: object):  # noqa: A
 
     debugger = Debugger(SimEngine(SimSettings(sequence=sequence, **engine_options)), port=free_port())
     debugger.server.scene.configure_environment_map(hdri=None)
+    _started.append(debugger)
     return debugger
 
 
@@ -56,6 +74,7 @@ def start_served(*argv: str):  # noqa: ANN201
 
     debugger = Debugger(build_engine(build_parser().parse_args(["serve", *argv])), port=free_port())
     debugger.server.scene.configure_environment_map(hdri=None)
+    _started.append(debugger)
     return debugger
 
 
