@@ -14,12 +14,7 @@ import sys  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
 from app import render_command, run_command, serve_command, sim_command  # noqa: E402
-
-EXIT_BAD_INPUT = 2
-
-
-class UsageError(Exception):
-    """Expected bad input: reported as one line, exit code 2."""
+from app.errors import EXIT_BAD_INPUT, UsageError, one_line  # noqa: E402
 
 
 class _Parser(argparse.ArgumentParser):
@@ -35,12 +30,6 @@ def build_parser() -> argparse.ArgumentParser:
     render_command.add_parser(sub)
     sim_command.add_parser(sub)
     return parser
-
-
-def one_line(text: object) -> str:
-    """`text` as one printable line: control characters, line and paragraph separators
-    and undecodable bytes of file names (surrogates) escaped as Python writes them."""
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))
 
 
 def _interrupt(_number: int, _frame: object) -> None:
@@ -59,7 +48,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except Exception as e:  # a dataset problem the user can fix: one line, no traceback
         from backend.data.errors import DatasetError
-        from backend.export.map_files import MissingLibraryError
+        from backend.common.optional import MissingLibraryError
 
         if isinstance(e, (DatasetError, MissingLibraryError)):
             print(f"error: {one_line(e)}", file=sys.stderr)
@@ -76,7 +65,5 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
-if __name__ == "__main__":  # `python -m app.cli`: run the imported module, whose UsageError the commands raise
-    from app.cli import main as _main
-
-    sys.exit(_main())
+if __name__ == "__main__":  # `python -m app.cli`
+    sys.exit(main())

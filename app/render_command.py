@@ -30,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from app.cli import UsageError
+    from app.errors import UsageError
     from app.sources import load_scene_argument
     from backend.data.synthetic import SequenceSettings, render_sequence
 
@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         settings = SequenceSettings(duration_s=args.duration, seed=args.seed, image_noise=args.image_noise, blur_px=args.blur, exposure=args.exposure)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    from backend.export.atomic import make_folder
+    from backend.common.atomic import make_folder
 
     out: pathlib.Path = args.out
     created = False
@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         make_folder(out)
     except OSError as e:
         raise UsageError(f"--out {out}: cannot create it: {e.strerror or e}") from None
-    from backend.export.atomic import InterruptedAfterCommit, staged_folder
+    from backend.common.atomic import InterruptedAfterCommit, staged_folder
 
     stage = None
     try:

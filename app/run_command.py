@@ -13,13 +13,13 @@ Outputs in `--out DIR`:
   DIR/trajectory.txt -a` reproduces `ate_rmse_cm` (`-as`: `ate_sim3_rmse_cm`), and
   `evo_rpe tum DIR/groundtruth.txt DIR/trajectory.txt --delta 1 --delta_unit m`
   reproduces `rpe_cm_per_m`.
-- `metrics.json` (see :func:`trajectory_metrics` for the trajectory figures), the combined
+- `metrics.json` (see :func:`backend.eval.run_metrics.trajectory_metrics` for the trajectory figures), the combined
   `map.ply`, and the map as the usual 3D tools read it (`backend.export.map_files`):
   `points.ply` (point cloud), `lines.ply` (line set), `planes.ply` (triangle mesh with
   `plane_id`), `cameras.ply` (keyframe frustums).
 
 The files are written into a hidden staging folder inside `--out` and moved into place only
-when all are written (`backend.export.atomic`): a full disk, an error or Ctrl-C / SIGTERM
+when all are written (`backend.common.atomic`): a full disk, an error or Ctrl-C / SIGTERM
 during the run leaves `--out` as it was (an earlier run's files there stay whole), and the
 command says so.
 """
@@ -34,7 +34,7 @@ import sys
 
 DEFAULT_DURATION_S = 30.0
 # Stages the stereo engine reports as means per frame within a step (the rest: per keyframe).
-PER_FRAME_STAGES = ("point_dm", "tracking", "load")
+
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -57,8 +57,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _prepare_out(out: pathlib.Path) -> None:
-    from app.cli import UsageError
-    from backend.export.atomic import make_folder
+    from app.errors import UsageError
+    from backend.common.atomic import make_folder
 
     try:
         if out.exists() and not out.is_dir():
@@ -82,61 +82,11 @@ def _json_safe(value):  # noqa: ANN001, ANN202
     return value
 
 
-RPE_DELTA_M = 1.0  # path length per relative-pose-error pair, metres
-
-
-def trajectory_metrics(estimate, ground_truth) -> tuple[dict, object]:  # noqa: ANN001
-    """Accuracy of the poses `estimate` (a Trajectory) against `ground_truth` (a Trajectory
-    of the same instants, NaN rows: none); also the evaluated ground truth (a Trajectory).
-
-    Evaluated: the poses with ground truth (`frames_evaluated`). Positions are taken as
-    written to the TUM file (9 decimals), so evo on the files gives the same figures:
-
-    - `ate_rmse_cm`: absolute trajectory error, RMSE of the position errors after the
-      least-squares rigid alignment of the estimate to the ground truth (Umeyama, SE(3));
-      `evo_ape tum groundtruth.txt trajectory.txt -a`. Null below 2 evaluated poses.
-    - `ate_sim3_rmse_cm`: the same after a similarity alignment (Sim(3), `-as`); null below 3.
-    - `rmse_cm`: RMSE of the position errors without alignment (the engine starts at the
-      ground-truth pose where there is one).
-    - `rpe_cm_per_m`: relative pose error, RMSE over consecutive pose pairs about
-      `rpe_delta_m` = 1 m of travelled path apart (path measured on the estimate) of the
-      translation of `(Q_i⁻¹ Q_j)⁻¹ (P_i⁻¹ P_j)`, in cm, i.e. cm per metre travelled;
-      `evo_rpe tum groundtruth.txt trajectory.txt --delta 1 --delta_unit m`. Null when the
-      path is shorter than 1 m (`rpe_pairs` 0).
-    """
-    import numpy as np
-
-    from backend.eval.trajectory import ate_rmse, relative_pose_error, translational_rmse
-    from backend.pipeline.snapshot import Trajectory
-
-    valid = np.isfinite(ground_truth.t_world_camera).all(axis=1) if len(ground_truth) else np.zeros(0, bool)
-    if len(ground_truth) != len(estimate):
-        valid = np.zeros(len(estimate), bool)
-    stamp = np.asarray(estimate.timestamp_ns)[valid]
-    p_est = np.round(np.asarray(estimate.t_world_camera)[valid], 9)
-    p_gt = np.round(np.asarray(ground_truth.t_world_camera)[valid], 9)
-    R_est = np.asarray(estimate.R_world_camera)[valid]
-    R_gt = np.asarray(ground_truth.R_world_camera)[valid]
-    n = int(valid.sum())
-    nan = float("nan")
-    rpe = relative_pose_error(R_est, p_est, R_gt, p_gt, delta_m=RPE_DELTA_M) if n else None
-    metrics = {
-        "frames_evaluated": n,
-        "ate_rmse_cm": 100.0 * ate_rmse(p_est, p_gt, align="se3") if n >= 2 else nan,
-        "ate_sim3_rmse_cm": 100.0 * ate_rmse(p_est, p_gt, align="sim3") if n >= 3 else nan,
-        "rmse_cm": 100.0 * translational_rmse(p_est, p_gt) if n else nan,
-        "rpe_cm_per_m": rpe.rmse_cm_per_m if rpe is not None else nan,
-        "rpe_delta_m": RPE_DELTA_M,
-        "rpe_pairs": rpe.pairs if rpe is not None else 0,
-    }
-    return metrics, Trajectory.of(stamp, R_gt, p_gt)
-
-
 def _write_staged(out: pathlib.Path, write) -> None:  # noqa: ANN001
     """`write(folder)` into a staging folder inside `out`, moved into `out` when it returns;
     a failed write (a full disk) is one line naming the file, and nothing is moved."""
-    from app.cli import UsageError
-    from backend.export.atomic import staged_folder
+    from app.errors import UsageError
+    from backend.common.atomic import staged_folder
 
     stage = None
     try:
@@ -156,7 +106,8 @@ def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, ground
     """trajectory.txt (`frames`: every tracked frame), keyframes.txt, groundtruth.txt,
     metrics.json, the combined map.ply and the typed points.ply, lines.ply, planes.ply and
     cameras.ply (backend.export.map_files)."""
-    from backend.export.map_files import MissingLibraryError, write_map_files
+    from backend.common.optional import MissingLibraryError
+    from backend.export.map_files import write_map_files
     from backend.export.ply import write_ply
     from backend.export.tum import write_tum
 
@@ -189,11 +140,11 @@ def run(args: argparse.Namespace) -> int:
     from backend.pipeline.sim_engine import SimEngine
 
     if getattr(args, "dense", False):
-        from backend.export.map_files import require_open3d
+        from backend.common.optional import require_open3d
 
         require_open3d()  # before the run: a missing library is one line, not a lost run
 
-    from backend.export.atomic import InterruptedAfterCommit
+    from backend.common.atomic import InterruptedAfterCommit
 
     engine = build_engine(args, headless=True)
     try:
@@ -218,8 +169,10 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
     import numpy as np
     from tqdm import tqdm
 
-    from app.cli import UsageError
+    from app.errors import UsageError
     from backend.eval import sequences
+    from backend.eval.run_metrics import trajectory_metrics
+    from backend.pipeline.snapshot import Trajectory
 
     n = args.keyframes if args.keyframes is not None else len(sequences.make_world(engine.settings.sequence, seed=args.seed).t_world_camera)
     if n < 1:
@@ -262,39 +215,11 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
             "all_stages": mean,
         },
     }
-    _write_staged(args.out, lambda folder: _write_outputs(folder, snapshot, metrics, frames=snapshot.estimate, groundtruth=evaluated))
+    _write_staged(args.out, lambda folder: _write_outputs(folder, snapshot, metrics, frames=snapshot.estimate, groundtruth=Trajectory.of(*evaluated)))
     print(f"{n} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned), RMSE {_cm(metrics['rmse_cm'])}, "
           f"{len(snapshot.planes)} planes; {mean['total']:.1f} ms per keyframe; "
           f"wrote {args.out}/trajectory.txt (keyframes), keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply")
     return 0
-
-
-def stereo_timing(steps: list[tuple[int, dict[str, float]]]) -> dict:
-    """DESIGN §7's timing means from the steps' `(frames, timing_ms)`, milliseconds.
-
-    The stereo engine reports `point_dm`, `tracking` and `load` as means per frame within a
-    step: they are averaged per frame (each step weighted by its frames). `total` is the
-    step's wall time without loading images: `total_per_frame` is Σ total / Σ frames. Every
-    other stage runs once per keyframe and is averaged over the keyframes where it ran (a
-    stage that did not run reports 0: the first keyframe's optimization, line D&M of P
-    variants, segmentation of -wo variants); None where it never ran."""
-    frames = sum(f for f, _ in steps)
-    stages: list[str] = []
-    for _, timing in steps:
-        stages += [k for k in timing if k not in stages]
-    mean: dict[str, float | None] = {}
-    for stage in stages:
-        if stage == "total_per_frame":
-            continue
-        if stage in PER_FRAME_STAGES:
-            mean[stage] = sum(f * t.get(stage, 0.0) for f, t in steps) / frames if frames else None
-        else:
-            ran = [t[stage] for _, t in steps if t.get(stage, 0.0) != 0.0]
-            mean[stage] = sum(ran) / len(ran) if ran else None
-    mean["total_per_frame"] = sum(t.get("total", 0.0) for _, t in steps) / frames if frames else None
-    timing = {k: mean.get(k) for k in ("point_dm", "tracking", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame")}
-    timing["all_stages"] = mean
-    return timing
 
 
 def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
@@ -310,8 +235,8 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
     fusion = fuse_keyframes(source, frames, np.asarray(snapshot.estimate.R_world_camera), t, map_bounds(snapshot.points.p_world, t))
     mesh = fusion.mesh()
     o3d = fusion._o3d
-    from backend.export.atomic import atomic_path
-    from backend.native_output import native_stderr_silenced
+    from backend.common.atomic import atomic_path
+    from backend.common.native_output import native_stderr_silenced
 
     with atomic_path(path) as tmp, native_stderr_silenced():
         if not o3d.io.write_triangle_mesh(str(tmp), mesh):
@@ -328,71 +253,13 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
     return out
 
 
-def vio_metrics(snapshot, frames) -> dict:  # noqa: ANN001
-    """The VIO part of metrics.json: the first initialization (keyframe, time, what the
-    alignment estimated and, on rendered scenes, its errors; the latest one's too, after a
-    loss VIO starts again; the gravity direction and gyroscope bias errors after the
-    refinement by the windows with IMU factors), the last keyframe's velocity and biases,
-    and the scale error of the whole trajectory (the Sim(3) alignment's scale minus one, in
-    percent, over the tracked frames with ground truth after the initialization)."""
-    import numpy as np
-
-    from backend.eval.trajectory import ate_rmse, umeyama_alignment
-
-    imu = snapshot.imu
-    first = imu.first_init_keyframe
-
-    def time_s(k: int) -> float | None:
-        return float((snapshot.estimate.timestamp_ns[k] - snapshot.estimate.timestamp_ns[0]) * 1e-9) if k >= 0 else None
-
-    out = {
-        "initialized": imu.initialized, "status": imu.status,
-        "init_keyframe": first, "init_time_s": time_s(first), "alignment": imu.first_report,
-        "last_init_keyframe": imu.init_keyframe, "last_init_time_s": time_s(imu.init_keyframe), "last_alignment": imu.report,
-        "velocity_world": imu.velocity_world[-1].tolist(), "bias_accel": imu.bias[-1][:3].tolist(), "bias_gyro": imu.bias[-1][3:].tolist(),
-        "scale_error_pct": None,
-    }
-    if first >= 0 and snapshot.ground_truth is not None:
-        # Gravity after the refinement: the angle between the world's vertical seen from the
-        # estimated and from the true keyframe orientation (roll and pitch error), at the
-        # initialization keyframe as the windows with IMU factors left it, and over all
-        # keyframes since.
-        z = np.array([0.0, 0.0, 1.0])
-        R_est = np.asarray(snapshot.estimate.R_world_camera)[first:]
-        R_gt = np.asarray(snapshot.ground_truth.R_world_camera)[first:]
-        ok = np.all(np.isfinite(R_gt.reshape(len(R_gt), -1)), axis=1)
-        a, b = R_est[ok].transpose(0, 2, 1) @ z, R_gt[ok].transpose(0, 2, 1) @ z
-        tilt = np.degrees(np.arccos(np.clip(np.sum(a * b, axis=1), -1.0, 1.0)))
-        if len(tilt):
-            out["gravity_error_refined_deg"] = float(tilt[0])
-            out["tilt_error_median_deg"] = float(np.median(tilt))
-    if first >= 0 and imu.bias_true is not None:
-        # The gyroscope bias after the refinement likewise: the initialization keyframe's, as
-        # the windows with IMU factors left it, and the median over the keyframes since.
-        b_est, b_true = np.asarray(imu.bias)[first:, 3:], np.asarray(imu.bias_true)[first:, 3:]
-        pct = 100.0 * np.linalg.norm(b_est - b_true, axis=1) / np.maximum(np.linalg.norm(b_true, axis=1), 1e-12)
-        out["bias_gyro_error_refined_pct"] = float(pct[0])
-        out["bias_gyro_error_median_pct"] = float(np.median(pct))
-    if first >= 0:
-        t0 = snapshot.estimate.timestamp_ns[first]
-        p_est, p_gt = np.asarray(frames.estimate.t_world_camera), np.asarray(frames.ground_truth.t_world_camera)
-        sel = (np.asarray(frames.estimate.timestamp_ns) >= t0) & np.all(np.isfinite(p_gt), axis=1)
-        if sel.sum() >= 3:
-            _, _, scale = umeyama_alignment(p_est[sel], p_gt[sel], with_scale=True)
-            out["scale_error_pct"] = float(100.0 * (scale - 1.0))
-            # The frames before the first initialization have no metric scale (a failed start
-            # keeps its arbitrary unit): VIO's accuracy is that of the frames from it on.
-            out["frames_after_init"] = int(sel.sum())
-            out["ate_after_init_cm"] = float(100.0 * ate_rmse(p_est[sel], p_gt[sel], align="se3"))
-            out["ate_sim3_after_init_cm"] = float(100.0 * ate_rmse(p_est[sel], p_gt[sel], align="sim3"))
-    return out
-
-
 def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
     from tqdm import tqdm
 
-    from app.cli import UsageError
+    from app.errors import UsageError
+    from backend.eval.run_metrics import stereo_timing, trajectory_metrics, vio_metrics
     from backend.pipeline.engine import EndOfSequence
+    from backend.pipeline.snapshot import Trajectory
 
     if args.keyframes is not None and args.keyframes < 1:
         raise UsageError(f"--keyframes {args.keyframes}: must be at least 1")
@@ -455,7 +322,7 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
     def write(folder: pathlib.Path) -> None:
         if getattr(args, "dense", False):
             metrics["dense"] = dense_mesh(engine.data_source, snapshot, folder / "mesh.ply")
-        _write_outputs(folder, snapshot, metrics, frames=frames.estimate, groundtruth=evaluated)
+        _write_outputs(folder, snapshot, metrics, frames=frames.estimate, groundtruth=Trajectory.of(*evaluated))
 
     _write_staged(args.out, write)
     per_frame = metrics["timing_ms"]["total_per_frame"]

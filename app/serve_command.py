@@ -42,7 +42,7 @@ def check_bindable(host: str, port: int) -> None:
     free port). The socket is closed again at once."""
     import socket
 
-    from app.cli import UsageError
+    from app.errors import UsageError
 
     try:
         family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
@@ -59,7 +59,7 @@ def check_bindable(host: str, port: int) -> None:
 def access_settings(args: argparse.Namespace):  # noqa: ANN201
     """The server's AccessSettings from `--allow-origin` and `--share`; UsageError for an
     origin that is not http(s)://HOST[:PORT]."""
-    from app.cli import UsageError
+    from app.errors import UsageError
     from viewer.access import AccessSettings, OriginError
 
     try:
@@ -85,7 +85,7 @@ def exposure_warnings(args: argparse.Namespace) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.cli import UsageError
+    from app.errors import UsageError
 
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port {args.port}: not a port number")

@@ -30,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def _check_writable_file(path: pathlib.Path, option: str) -> None:
     """Fail early (before hours of work) if `path` cannot be written; leaves no file behind."""
-    from app.cli import UsageError
+    from app.errors import UsageError
 
     try:
         if path.is_dir() or path.name in ("", ".", ".."):
@@ -48,7 +48,7 @@ def _check_plot_format(path: pathlib.Path) -> None:
     """The plot's file extension must be an image format matplotlib writes."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from app.cli import UsageError
+    from app.errors import UsageError
 
     formats = sorted(FigureCanvasAgg.get_supported_filetypes())
     suffix = path.suffix.lower().lstrip(".")
@@ -57,7 +57,7 @@ def _check_plot_format(path: pathlib.Path) -> None:
 
 
 def _parse_variants(text: str) -> list[str]:
-    from app.cli import UsageError
+    from app.errors import UsageError
     from backend.optim.problem import VARIANTS
 
     if text == "all":
@@ -110,7 +110,7 @@ def write_plot(path: pathlib.Path, sequence: str, runs: int, results: list, vari
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.cli import UsageError
+    from app.errors import UsageError
     from backend.eval import montecarlo, sequences
     from backend.optim.problem import build_problem
     from backend.optim.structure import hessian_structure
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     sigma_rel = SIGMA_REL_DEFAULT if args.sigma_rel is None else args.sigma_rel
     if not (np.isfinite(sigma_rel) and sigma_rel > 0):
         raise UsageError(f"--sigma-rel {args.sigma_rel}: must be a positive number")
-    from backend.export.atomic import make_folder
+    from backend.common.atomic import make_folder
 
     if args.hessian_dir is not None:  # first: a --json or --plot path it takes is then refused as a folder
         try:
@@ -162,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
         "machine": {"python": platform.python_version(), "processor": platform.machine(), "cpus": _cpu_count()},
         "variants": {name: s.to_json() for name, s in summary.items()},
     }
-    from backend.export.atomic import atomic_path
+    from backend.common.atomic import atomic_path
 
     option, path, plot_written = "--json", args.json, False
     try:  # each file complete or absent; the plot is moved into place just before the JSON

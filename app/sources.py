@@ -42,7 +42,7 @@ def default_scene() -> str:
 def load_scene_argument(text: str, *, other_names: tuple[str, ...] = ()):  # noqa: ANN201
     """A built-in rendered scene by name, or a scene JSON file; UsageError otherwise.
     `other_names` are further names the option accepts (named in the error message)."""
-    from app.cli import UsageError
+    from app.errors import UsageError
     from backend.data.scenes import SCENE_NAMES, SceneFileError, builtin_scene, load_scene
 
     if text in SCENE_NAMES:
@@ -101,7 +101,7 @@ class FirstFrames:
 
 
 def _refuse(args: argparse.Namespace, what: str, names: tuple[str, ...]) -> None:
-    from app.cli import UsageError
+    from app.errors import UsageError
 
     for name in names:
         value = getattr(args, name.lstrip("-").replace("-", "_"), None)
@@ -114,7 +114,7 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
     a bad EuRoC folder. `headless` (`run`): the stereo pipeline skips the stages its variant
     does not use (as the paper's Table III), draws no keyframe image and no Hessian; the
     debugger gets every stage, the image and the Hessian."""
-    from app.cli import UsageError
+    from app.errors import UsageError
 
     if args.window < 2:
         raise UsageError(f"--window {args.window}: must be at least 2")
@@ -174,7 +174,7 @@ def build_segmenter(args: argparse.Namespace, source=None):  # noqa: ANN001, ANN
     """The plane segmenter `--segmenter` names (the stereo default: geometric; VIO's:
     learned) for `source` (UsageError: a model file that cannot be used, or the oracle
     without a rendered scene; one line)."""
-    from app.cli import UsageError
+    from app.errors import UsageError
 
     default = "learned" if getattr(args, "mode", "stereo") == "vio" else "geometric"
     kind = getattr(args, "segmenter", None) or default

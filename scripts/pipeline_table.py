@@ -32,7 +32,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.cli import build_parser  # noqa: E402
-from app.run_command import stereo_timing  # noqa: E402
+from backend.eval.run_metrics import stereo_timing  # noqa: E402
 from app.sources import build_engine  # noqa: E402
 from backend.eval.planes import recovered_planes  # noqa: E402
 from backend.optim.problem import VARIANTS  # noqa: E402

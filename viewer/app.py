@@ -763,7 +763,8 @@ class Debugger:
         if what == "map":
             client.send_file_download(f"coplanar_map_kf{snapshot.keyframe:05d}_{snapshot.variant}.ply", snapshot_ply_bytes(snapshot), save_immediately=True)
         elif what == "files":
-            from backend.export.map_files import MissingLibraryError, map_files_zip
+            from backend.common.optional import MissingLibraryError
+            from backend.export.map_files import map_files_zip
 
             try:
                 data = map_files_zip(snapshot)

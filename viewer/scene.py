@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import viser
 
-from backend.export.palette import plane_color
+from backend.common.palette import plane_color
 from backend.geometry.camera import PinholeCamera
 from backend.pipeline.snapshot import INLIER, OUTLIER, Snapshot
 from viewer.framing import marker_size_m, snapshot_bounds

@@ -52,7 +52,7 @@ from backend.data.calibration import (
 from backend.data.errors import DatasetError, read_text
 from backend.data.motion import ImuData
 from backend.geometry.camera import PinholeCamera
-from backend.native_output import native_stderr_silenced
+from backend.common.native_output import native_stderr_silenced
 
 CAMERA_COLUMNS = ("timestamp", "filename")
 IMU_COLUMNS = ("timestamp", "w_RS_S_x", "w_RS_S_y", "w_RS_S_z", "a_RS_S_x", "a_RS_S_y", "a_RS_S_z")

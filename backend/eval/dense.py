@@ -19,7 +19,7 @@ import time
 import cv2
 import numpy as np
 
-from backend.export.map_files import require_open3d
+from backend.common.optional import require_open3d
 from backend.geometry.camera import PinholeCamera
 
 

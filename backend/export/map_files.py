@@ -25,33 +25,15 @@ import zipfile
 import numpy as np
 from plyfile import PlyData, PlyElement
 
-from backend.export.atomic import atomic_path, write_bytes_atomic
-from backend.export.palette import plane_color
-from backend.native_output import native_stderr_silenced
+from backend.common.atomic import atomic_path, write_bytes_atomic
+from backend.common.native_output import native_stderr_silenced
+from backend.common.optional import MissingLibraryError, require_open3d
+from backend.common.palette import plane_color
 from backend.export.ply import snapshot_ply_bytes
 from backend.pipeline.snapshot import Snapshot
 
 FRUSTUM_DEPTH_M = 0.15
 MAP_FILES = ("map.ply", "points.ply", "lines.ply", "planes.ply", "cameras.ply")
-
-
-class MissingLibraryError(Exception):
-    """open3d cannot be imported (a missing system library): one line, exit code 2."""
-
-
-def require_open3d():  # noqa: ANN201
-    """The open3d module, or a one-line :class:`MissingLibraryError` that says what to install."""
-    try:
-        import open3d
-    except (ImportError, OSError) as error:
-        text = " ".join(str(error).split())
-        if "libusb" in text:
-            raise MissingLibraryError(
-                "open3d cannot be imported: the system library libusb-1.0 is missing "
-                "(Debian: apt-get install libusb-1.0-0; `bash scripts/setup.sh` installs it when run as root)"
-            ) from None
-        raise MissingLibraryError(f"open3d cannot be imported: {text}") from None
-    return open3d
 
 
 def point_cloud(snapshot: Snapshot):  # noqa: ANN201

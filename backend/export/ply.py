@@ -14,7 +14,7 @@ import pathlib
 import numpy as np
 from plyfile import PlyData, PlyElement
 
-from backend.export.palette import plane_color
+from backend.common.palette import plane_color
 from backend.pipeline.snapshot import Snapshot
 
 
@@ -60,7 +60,7 @@ def snapshot_ply_bytes(snapshot: Snapshot) -> bytes:
 
 def write_ply(path: pathlib.Path | str, snapshot: Snapshot) -> None:
     """Write :func:`snapshot_ply_bytes` to `path` (complete or not at all)."""
-    from backend.export.atomic import write_bytes_atomic
+    from backend.common.atomic import write_bytes_atomic
 
     write_bytes_atomic(path, snapshot_ply_bytes(snapshot))
 

@@ -10,7 +10,7 @@ import typing
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from backend.export.atomic import atomic_path
+from backend.common.atomic import atomic_path
 from backend.pipeline.snapshot import Trajectory
 
 

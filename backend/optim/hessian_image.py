@@ -367,7 +367,7 @@ def write_hessian_png(
 ) -> None:
     """Write `render_hessian(...)` as a PNG file at `path` (parent directory must exist;
     complete or not at all)."""
-    from backend.export.atomic import write_bytes_atomic
+    from backend.common.atomic import write_bytes_atomic
 
     write_bytes_atomic(path, hessian_png_bytes(pattern, groups, max_px=max_px, legend=legend, title=title))
 

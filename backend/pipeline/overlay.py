@@ -5,7 +5,7 @@ the co-planar detection made of it, drawn once per keyframe and stored as JPEG
 Layers, bottom to top:
 
 - plane instances of the segmenter: accepted instances tinted (35 %) with their map plane's
-  colour (`backend.export.palette.plane_color`), instances the co-planar RANSAC rejected
+  colour (`backend.common.palette.plane_color`), instances the co-planar RANSAC rejected
   (or did not test) tinted light grey and hatched; a thin contour around every instance;
 - segments, 2 px, in their plane's colour (grey: no plane);
 - points: tracked (green), new stereo landmarks (cyan), detections without a landmark
@@ -24,7 +24,7 @@ import functools
 import cv2
 import numpy as np
 
-from backend.export.palette import plane_color
+from backend.common.palette import plane_color
 from backend.pipeline.snapshot import KeyframeImage
 
 # Point states (`point_status`).

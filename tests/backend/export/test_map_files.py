@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
-from backend.export.map_files import MAP_FILES, MissingLibraryError, map_files_zip, require_open3d, write_map_files
+from backend.common.optional import MissingLibraryError, require_open3d
+from backend.export.map_files import MAP_FILES, map_files_zip, write_map_files
 
 o3d = pytest.importorskip("open3d")
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
-from backend.export.palette import NON_PLANAR, plane_color
+from backend.common.palette import NON_PLANAR, plane_color
 from backend.export.ply import snapshot_ply_bytes, write_ply
 from backend.pipeline.sim_engine import SimEngine, SimSettings
 from backend.pipeline.snapshot import PlaneLandmark, Snapshot, frozen

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from backend.export.palette import NON_PLANAR, plane_color
+from backend.common.palette import NON_PLANAR, plane_color
 from backend.pipeline import overlay
 from backend.pipeline.overlay import (
     POINT_COLORS, POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED, REJECTED_TINT, TINT_ALPHA,

@@ -1,4 +1,4 @@
-"""Files complete or not at all (backend.export.atomic): what `run`, `render` and `sim`
+"""Files complete or not at all (backend.common.atomic): what `run`, `render` and `sim`
 rely on so that a full disk or Ctrl-C never leaves half-written output."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from backend.export.atomic import STAGING_PREFIX, InterruptedAfterCommit, atomic_path, staged_folder, write_bytes_atomic, write_text_atomic
+from backend.common.atomic import STAGING_PREFIX, InterruptedAfterCommit, atomic_path, staged_folder, write_bytes_atomic, write_text_atomic
 
 
 def test_atomic_write_replaces_the_file_whole(tmp_path: pathlib.Path) -> None:
