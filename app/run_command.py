@@ -40,12 +40,12 @@ DEFAULT_DURATION_S = 30.0
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from app.options import path
     from app.sources import add_source_arguments
-    from backend.optim.problem import VARIANTS
+    from backend.optim.variant import VARIANT_NAMES
 
     p = sub.add_parser("run", help="run the engine headless; write trajectory.txt (every tracked frame), keyframes.txt, groundtruth.txt, metrics.json, map.ply "
                                        "and points.ply, lines.ply, planes.ply, cameras.ply")
     add_source_arguments(p, duration_default=DEFAULT_DURATION_S)
-    p.add_argument("--variant", required=True, choices=VARIANTS, help="parametrization")
+    p.add_argument("--variant", required=True, choices=VARIANT_NAMES, help="parametrization")
     p.add_argument("--out", required=True, type=path, help="output folder (created if missing)")
     p.add_argument("--frames", type=int, default=None, metavar="N", help="stereo inputs: stop after the first N frames (default all)")
     p.add_argument("--keyframes", type=int, default=None, metavar="N",

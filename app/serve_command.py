@@ -11,11 +11,11 @@ DEFAULT_DURATION_S = 60.0
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from app.sources import add_source_arguments
-    from backend.optim.problem import VARIANTS
+    from backend.optim.variant import VARIANT_NAMES
 
     p = sub.add_parser("serve", help="start the debugger (open the printed address in a browser)")
     add_source_arguments(p, duration_default=DEFAULT_DURATION_S)
-    p.add_argument("--variant", default="PL-w", choices=VARIANTS, help="parametrization to start with (default PL-w)")
+    p.add_argument("--variant", default="PL-w", choices=VARIANT_NAMES, help="parametrization to start with (default PL-w)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only; another address warns)")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0: any free one; a port in use is an error)")
     p.add_argument(

@@ -10,16 +10,17 @@ import sys
 
 import numpy as np
 
+from backend.optim.variant import VARIANT_NAMES, VARIANTS, Variant
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from app.options import path, seed
-    from backend.optim.problem import VARIANTS
 
     p = sub.add_parser("sim", help="run the Monte-Carlo study of the six variants")
     p.add_argument("--sequence", required=True, choices=("a", "b"), help="a: four walls, 150 poses; b: one wall, 50 poses")
     p.add_argument("--runs", type=int, default=30, help="number of noise draws (default 30)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the world and the noise (default 0)")
-    p.add_argument("--variants", default="all", help=f"'all' or a comma list of {','.join(VARIANTS)}")
+    p.add_argument("--variants", default="all", help=f"'all' or a comma list of {','.join(VARIANT_NAMES)}")
     p.add_argument("--json", required=True, type=path, help="write the medians here (JSON)")
     p.add_argument("--plot", type=path, default=None, help="PNG of RMSE and time per variant (default: the --json path with .png)")
     p.add_argument("--solver", choices=("gn", "lm"), default="gn", help="gn: Gauss-Newton (the paper's study, default); lm: Levenberg-Marquardt")
@@ -56,17 +57,16 @@ def _check_plot_format(path: pathlib.Path) -> None:
         raise UsageError(f"--plot {path}: unknown image format {suffix!r} (use one of {', '.join(formats)})")
 
 
-def _parse_variants(text: str) -> list[str]:
+def _parse_variants(text: str) -> list[Variant]:
     from app.errors import UsageError
-    from backend.optim.problem import VARIANTS
 
     if text == "all":
         return list(VARIANTS)
     names = [v.strip() for v in text.split(",") if v.strip()]
-    bad = [v for v in names if v not in VARIANTS]
+    bad = [v for v in names if v not in VARIANT_NAMES]
     if bad or not names:
-        raise UsageError(f"--variants: unknown variant(s) {', '.join(bad) or '(none)'}; expected 'all' or some of {', '.join(VARIANTS)}")
-    return names
+        raise UsageError(f"--variants: unknown variant(s) {', '.join(bad) or '(none)'}; expected 'all' or some of {', '.join(VARIANT_NAMES)}")
+    return [Variant.parse(v) for v in names]
 
 
 def format_table(sequence: str, runs: int, summary: dict) -> str:

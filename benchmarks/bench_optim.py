@@ -23,7 +23,8 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from backend.eval import montecarlo, sequences  # noqa: E402
-from backend.optim.problem import VARIANTS, build_problem  # noqa: E402
+from backend.optim.problem import build_problem  # noqa: E402
+from backend.optim.variant import VARIANTS  # noqa: E402
 from backend.optim.solver import optimize  # noqa: E402
 
 

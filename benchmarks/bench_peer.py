@@ -61,7 +61,8 @@ from gtsam.symbol_shorthand import L, X  # noqa: E402
 
 from backend.eval import montecarlo, sequences  # noqa: E402
 from backend.eval.trajectory import translational_rmse  # noqa: E402
-from backend.optim.problem import VARIANTS, ProblemData, State, build_problem  # noqa: E402
+from backend.optim.problem import ProblemData, State, build_problem  # noqa: E402
+from backend.optim.variant import VARIANTS  # noqa: E402
 from backend.optim.solver import optimize  # noqa: E402
 
 MAX_ITERATIONS = 10

@@ -23,7 +23,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 from app.cli import build_parser  # noqa: E402
 from app.run_command import run  # noqa: E402
-from backend.optim.problem import VARIANTS  # noqa: E402
+from backend.optim.variant import VARIANTS  # noqa: E402
 from euroc_table import _f, publish  # noqa: E402
 
 

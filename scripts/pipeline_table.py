@@ -35,7 +35,7 @@ from app.cli import build_parser  # noqa: E402
 from backend.eval.run_metrics import stereo_timing  # noqa: E402
 from app.sources import build_engine  # noqa: E402
 from backend.eval.planes import recovered_planes  # noqa: E402
-from backend.optim.problem import VARIANTS  # noqa: E402
+from backend.optim.variant import VARIANTS  # noqa: E402
 from backend.pipeline.engine import EndOfSequence  # noqa: E402
 
 MIN_SHARE = 0.05

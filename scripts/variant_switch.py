@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.cli import build_parser  # noqa: E402
 from app.sources import build_engine  # noqa: E402
-from backend.optim.problem import VARIANTS  # noqa: E402
+from backend.optim.variant import VARIANTS  # noqa: E402
 from backend.pipeline.snapshot import Snapshot  # noqa: E402
 
 

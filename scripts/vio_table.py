@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from app.cli import build_parser  # noqa: E402
 from app.run_command import run  # noqa: E402
 from euroc_table import publish  # noqa: E402
-from backend.optim.problem import VARIANTS  # noqa: E402
+from backend.optim.variant import VARIANTS  # noqa: E402
 
 
 def run_one(scene: str, variant: str, mode: str, *, duration: float, speed: float, extra: tuple[str, ...] = ()) -> dict:

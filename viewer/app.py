@@ -29,7 +29,7 @@ import numpy as np
 import viser
 
 from backend.export.ply import snapshot_ply_bytes
-from backend.optim.problem import VARIANTS, parse_variant
+from backend.optim.variant import VARIANT_NAMES, VARIANTS, Variant
 from backend.pipeline.engine import Engine, EndOfSequence
 from backend.pipeline.snapshot import Snapshot
 from viewer import images, panels
@@ -128,7 +128,7 @@ class Debugger:
         gui.main_panel.dock_right()
         self.status = gui.add_markdown(f"**{self.engine.source}**: ready, press Step or Play")
         with gui.add_folder("Run"):
-            self.variant = gui.add_dropdown("Variant", VARIANTS, initial_value=self.engine.variant)
+            self.variant = gui.add_dropdown("Variant", VARIANT_NAMES, initial_value=str(self.engine.variant))
             self.segmenter = None
             if hasattr(self.engine, "segmenter"):  # image pipelines: plane instances from stereo, the network or (rendered) the truth
                 kinds = ("geometric", "learned") + ((ORACLE,) if hasattr(getattr(self.engine, "data_source", None), "views") else ())
@@ -144,7 +144,7 @@ class Debugger:
             # Last in the folder, so that showing it moves nothing a user clicks.
             self.progress = gui.add_progress_bar(100.0, animated=True, visible=False)
         with gui.add_folder("A/B run"):
-            self.ab_variant = gui.add_dropdown("B variant", (AB_OFF, *VARIANTS), initial_value=AB_OFF)
+            self.ab_variant = gui.add_dropdown("B variant", (AB_OFF, *VARIANT_NAMES), initial_value=AB_OFF)
             self.ab_note = gui.add_markdown("A second engine runs the same input in lockstep from the state shown when B is chosen; its trajectory and newest camera are drawn in magenta, the differences are in the *Variants* tab.")
         with gui.add_folder("View"):
             self.follow = gui.add_checkbox("Follow keyframe", initial_value=False)
@@ -210,7 +210,7 @@ class Debugger:
         @self.variant.on_update
         def _(event: viser.GuiEvent) -> None:
             if event.client is not None:
-                self._enqueue(Command.VARIANT, self.variant.value)
+                self._enqueue(Command.VARIANT, Variant.parse(self.variant.value))
 
         if self.segmenter is not None:
             @self.segmenter.on_update
@@ -353,7 +353,7 @@ class Debugger:
         if command is Command.STEP:
             self._step()
         elif command is Command.VARIANT:
-            self._switch_variant(str(arg))
+            self._switch_variant(Variant.parse(arg))  # type: ignore[arg-type]
         elif command is Command.ALL_VARIANTS:
             self._all_variants()
         elif command is Command.AB:
@@ -400,10 +400,9 @@ class Debugger:
         while len(self.history_b) > self.settings.history:
             self.history_b.pop(next(iter(self.history_b)))
 
-    def _switch_variant(self, name: str) -> None:
+    def _switch_variant(self, name: Variant) -> None:
         """Show `name` at the newest keyframe: its kept result, or the window re-optimized
         with it from the state the step left."""
-        parse_variant(name)
         if not self.history:
             self.engine.set_variant(name)
             self._set_status(f"variant {name}: used from the first step")
@@ -448,7 +447,7 @@ class Debugger:
             if self._shown is not None:
                 self._show(self._shown)
             return
-        parse_variant(name)
+        variant = Variant.parse(name)
         if not hasattr(self.engine, "checkpoint"):  # a copy would share the engine's state
             self._stop_ab(f"{self.engine.source}: this engine cannot be copied for an A/B run")
             self._set_status(f"**A/B run**: {self.engine.source} cannot be copied (no checkpoint)")
@@ -456,7 +455,7 @@ class Debugger:
         self._busy(f"starting the A/B run with {name} …")
         engine_b = copy.copy(self.engine)
         engine_b.restore(self.engine.checkpoint())
-        engine_b.set_variant(name)
+        engine_b.set_variant(variant)
         self.engine_b = engine_b
         if self.ab_variant.value != name:
             self.ab_variant.value = name
@@ -581,7 +580,7 @@ class Debugger:
             self.ab_text.content = panels.ab_markdown(snapshot, other) if self.engine_b is not None else ""
             self.layer_note.content = (
                 f"*{snapshot.variant}: planes are detected and drawn faint for reference; this variant's optimizer does not use them*"
-                if snapshot.variant.endswith("-wo") else ""
+                if not snapshot.variant.uses_planes else ""
             )
         self.server.flush()
         self._request_plots()
@@ -592,9 +591,7 @@ class Debugger:
         self.compare_image.visible = bool(self.compare_box.value)
         if not self.compare_box.value or not self.history:
             return
-        with_lines, _ = parse_variant(self.engine.variant)
-        family = ("PL-wo", "PL-r", "PL-w") if with_lines else ("P-wo", "P-r", "P-w")
-        structures = self.engine.compare_hessians(family)
+        structures = self.engine.compare_hessians(self.engine.variant.family())
         if structures:
             self.compare_image.image = images.compare_image(structures)
 

@@ -237,7 +237,7 @@ class SceneView:
 
         # Planes: the hull of the inliers (a triangle fan) and an optional large quad;
         # faint under -wo variants, whose optimizer does not use them.
-        opacity = PLANE_OPACITY_UNUSED if snapshot.variant.endswith("-wo") else PLANE_OPACITY
+        opacity = PLANE_OPACITY_UNUSED if not snapshot.variant.uses_planes else PLANE_OPACITY
         names = set()
         for plane in snapshot.planes:
             color = tuple(int(c) for c in plane_color(plane.id))

@@ -18,7 +18,8 @@ from backend.geometry import plane as plane_geo
 from backend.geometry import so3
 from backend.geometry.se3 import Poses
 from backend.mapping.triangulation import triangulate_lines, triangulate_points
-from backend.optim.problem import SIGMA_REL_DEFAULT, VARIANTS, DistancePrior, Observations, Odometry, PosePrior, ProblemData, build_problem
+from backend.optim.variant import VARIANTS, Variant
+from backend.optim.problem import SIGMA_REL_DEFAULT, DistancePrior, Observations, Odometry, PosePrior, ProblemData, build_problem
 from backend.optim.solver import SolveReport, optimize
 
 SIGMA_PX = 1.0
@@ -148,7 +149,7 @@ def scale_prior_pose(world: sequences.World) -> int:
 class RunResult:
     """One variant on one noise draw: errors in cm, the symbolic setup time in ms."""
 
-    variant: str
+    variant: Variant
     run: int
     rmse_cm: float
     ate_sim3_cm: float
@@ -181,7 +182,7 @@ class VariantSummary:
         return dataclasses.asdict(self)
 
 
-def run_variant(data: ProblemData, variant: str, world: sequences.World, *, method: str = "gn", max_iterations: int = MAX_ITERATIONS, run: int = 0) -> RunResult:
+def run_variant(data: ProblemData, variant: Variant, world: sequences.World, *, method: str = "gn", max_iterations: int = MAX_ITERATIONS, run: int = 0) -> RunResult:
     """Build and solve one variant from `data`; errors against the world's true poses."""
     t0 = time.perf_counter()
     problem = build_problem(data, variant)
@@ -204,7 +205,7 @@ def run_study(
     *,
     runs: int = 30,
     seed: int = 0,
-    variants: Sequence[str] = VARIANTS,
+    variants: Sequence[Variant] = VARIANTS,
     method: str = "gn",
     sigma_rel: float = SIGMA_REL_DEFAULT,
     on_run: Callable[[int], None] | None = None,

@@ -10,7 +10,6 @@ sparse Jacobian, columns grouped as cameras | points | lines | planes.
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -21,9 +20,8 @@ from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.geometry.se3 import Poses
 from backend.optim import factors, inertial, kernels
+from backend.optim.variant import PlaneMode, Variant
 
-VARIANTS: tuple[str, ...] = ("P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w")
-VariantName = Literal["P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w"]
 GROUPS: tuple[str, ...] = ("cameras", "points", "lines", "planes")
 
 # A ray or back-projection plane within this angle of parallel to its plane is rejected.
@@ -49,14 +47,6 @@ MIN_ANCHOR_PLANE_DISTANCE_M = 1e-3
 # trajectory. A pipeline's plane association (Eq. 4 distance, 15 cm) never pairs
 # such a feature; -w is unaffected (it builds the feature on its plane).
 MAX_INITIAL_RELATIVE_RESIDUAL = 0.3
-
-
-def parse_variant(name: str) -> tuple[bool, str]:
-    """`"PL-w"` -> (with_lines=True, mode="w"). Raises ValueError for unknown names."""
-    if name not in VARIANTS:
-        raise ValueError(f"unknown variant {name!r}; expected one of {', '.join(VARIANTS)}")
-    kind, mode = name.split("-")
-    return kind == "PL", mode
 
 
 @dataclasses.dataclass(frozen=True)
@@ -351,7 +341,7 @@ class Problem:
     """A variant's problem: which variables are optimized and which factors are active."""
 
     data: ProblemData
-    variant: str
+    variant: Variant
     layout: Layout
     point_obs_inv_depth: Observations   # -wo/-r points and non-planar points of -w
     point_obs_planar: Observations      # -w points (anchor ray on a plane)
@@ -455,7 +445,7 @@ class Problem:
         return (self.layout.line_col < 0) & (self.data.line_plane >= 0) & self._uses_planes_w()
 
     def _uses_planes_w(self) -> bool:
-        return self.variant.endswith("-w")
+        return self.variant.plane_mode is PlaneMode.PARAMETRIZED
 
     def _normalized(self, key: str, uv: np.ndarray) -> np.ndarray:
         """Normalized coordinates of fixed observations, computed once per problem."""
@@ -666,7 +656,7 @@ def _initially_near_plane(data: ProblemData, kind: str, index: np.ndarray) -> np
     return np.all(np.isfinite(res), axis=1) & (np.max(np.abs(res), axis=1) <= MAX_INITIAL_RELATIVE_RESIDUAL)
 
 
-def build_problem(data: ProblemData, variant: str, *, robust_px: float | None = None) -> Problem:
+def build_problem(data: ProblemData, variant: Variant | str, *, robust_px: float | None = None) -> Problem:
     """Choose the variables and factors of `variant` (DESIGN §3) for `data`.
 
     -wo: every point is an inverse depth, every line orthonormal, no planes. -r: as -wo plus
@@ -676,16 +666,17 @@ def build_problem(data: ProblemData, variant: str, *, robust_px: float | None = 
     for -r also those whose anchor camera is (nearly) on their plane or that start far off it
     (MAX_INITIAL_RELATIVE_RESIDUAL).
     """
-    with_lines, mode = parse_variant(variant)
+    variant = Variant.parse(variant)
+    with_lines, mode = variant.with_lines, variant.plane_mode
     n_poses = len(data.poses)
     n_points = len(data.point_anchor)
     n_lines = len(data.line_anchor) if with_lines else 0
     n_planes = len(data.plane_n)
     fixed = np.zeros(n_poses, bool) if data.fixed_poses is None else np.asarray(data.fixed_poses, bool)
 
-    point_planar = _point_plane_valid(data) if mode != "wo" else np.zeros(n_points, bool)
-    line_planar = _line_plane_valid(data)[:n_lines] if (mode != "wo" and with_lines) else np.zeros(n_lines, bool)
-    if mode == "r":  # the relative -r residuals need the anchor off the plane and a sane start
+    point_planar = _point_plane_valid(data) if mode is not PlaneMode.WITHOUT else np.zeros(n_points, bool)
+    line_planar = _line_plane_valid(data)[:n_lines] if (mode is not PlaneMode.WITHOUT and with_lines) else np.zeros(n_lines, bool)
+    if mode is PlaneMode.RESIDUAL:  # the relative -r residuals need the anchor off the plane and a sane start
         pp, lp = np.flatnonzero(point_planar), np.flatnonzero(line_planar)
         point_planar[pp] = _anchor_off_plane(data, data.point_anchor[pp], data.point_plane[pp])
         line_planar[lp] = _anchor_off_plane(data, data.line_anchor[lp], data.line_plane[lp])
@@ -693,13 +684,13 @@ def build_problem(data: ProblemData, variant: str, *, robust_px: float | None = 
         point_planar[pp] = _initially_near_plane(data, "point", pp)
         line_planar[lp] = _initially_near_plane(data, "line", lp)
 
-    point_var = np.ones(n_points, bool) if mode != "w" else ~point_planar
-    line_var = np.ones(n_lines, bool) if mode != "w" else ~line_planar
+    point_var = np.ones(n_points, bool) if mode is not PlaneMode.PARAMETRIZED else ~point_planar
+    line_var = np.ones(n_lines, bool) if mode is not PlaneMode.PARAMETRIZED else ~line_planar
     used_planes = np.zeros(n_planes, bool)
     used_planes[data.point_plane[point_planar]] = True
     if with_lines:
         used_planes[data.line_plane[:n_lines][line_planar]] = True
-    if mode != "wo" and data.inertial is not None and data.inertial.prior is not None:
+    if mode is not PlaneMode.WITHOUT and data.inertial is not None and data.inertial.prior is not None:
         used_planes[data.inertial.prior.plane_index] = True  # a marginalization prior keeps its planes in the window
 
     # Column layout: cameras (poses, then VIO's inertial states) | points | lines | planes.
@@ -743,7 +734,7 @@ def build_problem(data: ProblemData, variant: str, *, robust_px: float | None = 
     anchor_left = (lo_planar.pose == data.line_anchor[lo_planar.landmark]) & np.all(lo_planar.offset == 0, axis=1)
     lo_planar = lo_planar.select(~anchor_left)
 
-    if mode == "r":
+    if mode is PlaneMode.RESIDUAL:
         pp = np.flatnonzero(point_planar)
         point_pairs = np.stack([pp, data.point_plane[pp]], axis=1)
         lp = np.flatnonzero(line_planar)

@@ -35,7 +35,8 @@ from backend.geometry.se3 import Poses
 from backend.mapping import coplanar
 from backend.mapping.triangulation import triangulate_lines, triangulate_points
 from backend.optim import factors
-from backend.optim.problem import VARIANTS, Observations, Odometry, PosePrior, ProblemData, build_problem, parse_variant
+from backend.optim.problem import Observations, Odometry, PosePrior, ProblemData, build_problem
+from backend.optim.variant import VARIANTS, Variant
 from backend.optim.solver import optimize
 from backend.optim.structure import HessianStructure, hessian_structure
 from backend.pipeline.buffers import RowBuffer
@@ -75,7 +76,7 @@ class SimSettings:
 
     sequence: str = "a"
     seed: int = 0
-    variant: str = "PL-w"
+    variant: Variant = Variant.PL_W
     window: int = 10
     fixed_horizon: int = 10
     mislabel: float = 0.1
@@ -92,7 +93,7 @@ class SimSettings:
     def __post_init__(self) -> None:
         if self.sequence not in sequences.SEQUENCES:
             raise ValueError(f"unknown sequence {self.sequence!r}; expected one of {', '.join(sequences.SEQUENCES)}")
-        parse_variant(self.variant)
+        object.__setattr__(self, "variant", Variant.parse(self.variant))  # a name given as text is parsed here, once
         if self.window < 2:
             raise ValueError("window must be at least 2 keyframes")
         if not 0.0 <= self.mislabel <= 1.0:
@@ -148,16 +149,15 @@ class SimEngine:
         return f"Monte-Carlo sequence {self.settings.sequence} (seed {self.settings.seed})"
 
     @property
-    def variant(self) -> str:
+    def variant(self) -> Variant:
         return self._variant
 
     @property
     def keyframes(self) -> int:
         return len(self._t_est)
 
-    def set_variant(self, name: str) -> None:
-        parse_variant(name)
-        self._variant = name
+    def set_variant(self, variant: Variant) -> None:
+        self._variant = Variant.parse(variant)
 
     def checkpoint(self) -> object:
         return checkpoint_of(self, shared=("settings", "_world", "_last"))
@@ -220,7 +220,7 @@ class SimEngine:
         state = (last.points.id, last.points.detection, last.lines.id, last.lines.detection)
         return self._optimize(last.keyframe, last.detection, state, timing, time.perf_counter())
 
-    def compare_hessians(self, variants: tuple[str, ...]) -> dict[str, HessianStructure]:
+    def compare_hessians(self, variants: tuple[Variant, ...]) -> dict[Variant, HessianStructure]:
         if self._window is None:
             return {}
         return {v: hessian_structure(build_problem(self._window.data, v)) for v in variants}
@@ -519,9 +519,8 @@ class SimEngine:
             p = problem.point_positions(state)
             good = np.all(np.isfinite(p), axis=1)
             self._p_world[win.points[good]] = p[good]
-        with_lines, _ = parse_variant(self._variant)
         if len(win.lines):
-            if with_lines:
+            if self._variant.with_lines:
                 m, v = problem.line_pluecker(state)
                 norm = np.linalg.norm(v, axis=1, keepdims=True)
                 self._l_m[win.lines], self._l_v[win.lines] = m / norm, v / norm

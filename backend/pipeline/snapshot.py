@@ -13,6 +13,7 @@ import numpy as np
 
 from backend.geometry.camera import PinholeCamera
 from backend.optim.structure import HessianStructure
+from backend.optim.variant import Variant
 
 # Landmark states with respect to the last plane detection (RANSAC of paper Eq. 4).
 NOT_TESTED = 0
@@ -140,7 +141,7 @@ class OptimizationReport:
     `backend.optim.solver`); `dropped_landmarks` counts landmarks left out of a step because
     they were not constrained enough."""
 
-    variant: str
+    variant: Variant
     method: str
     iterations: int
     initial_cost: float
@@ -153,6 +154,9 @@ class OptimizationReport:
     timing_ms: dict[str, float]
     termination: str = ""
     dropped_landmarks: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "variant", Variant.parse(self.variant))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -65,7 +65,8 @@ from backend.geometry.camera import PinholeCamera
 from backend.geometry.se3 import Poses
 from backend.mapping import coplanar
 from backend.optim import factors
-from backend.optim.problem import Observations, ProblemData, build_problem, parse_variant
+from backend.optim.problem import Observations, ProblemData, build_problem
+from backend.optim.variant import Variant
 from backend.optim.solver import optimize
 from backend.optim.structure import HessianStructure, hessian_structure
 from backend.pipeline.buffers import RowBuffer
@@ -132,7 +133,7 @@ class StereoSettings:
     (None: no image). `hessian`: put the window's Hessian structure in snapshots (the
     debugger shows it; headless runs skip it)."""
 
-    variant: str = "PL-w"
+    variant: Variant = Variant.PL_W
     window: int = 10
     fixed_horizon: int = 10
     min_keyframe_gap: int = 20
@@ -167,7 +168,7 @@ class StereoSettings:
     coplanar: coplanar.CoplanarSettings = coplanar.CoplanarSettings()
 
     def __post_init__(self) -> None:
-        parse_variant(self.variant)
+        object.__setattr__(self, "variant", Variant.parse(self.variant))  # a name given as text is parsed here, once
         if self.window < 2:
             raise ValueError("window must be at least 2 keyframes")
 
@@ -259,7 +260,7 @@ class StereoEngine:
         return self._name
 
     @property
-    def variant(self) -> str:
+    def variant(self) -> Variant:
         return self._variant
 
     @property
@@ -271,9 +272,8 @@ class StereoEngine:
         """Frames read so far."""
         return self._next_frame
 
-    def set_variant(self, name: str) -> None:
-        parse_variant(name)
-        self._variant = name
+    def set_variant(self, variant: Variant) -> None:
+        self._variant = Variant.parse(variant)
 
     def checkpoint(self) -> object:
         return checkpoint_of(self, shared=("data_source", "settings", "_name", "segmenter", "camera", "on_frame", "_last"))
@@ -395,7 +395,7 @@ class StereoEngine:
             estimate=Trajectory.of(stamp, R, t), ground_truth=Trajectory.of(stamp.copy(), R_gt, t_gt),
         )
 
-    def compare_hessians(self, variants: tuple[str, ...]) -> dict[str, HessianStructure]:
+    def compare_hessians(self, variants: tuple[Variant, ...]) -> dict[Variant, HessianStructure]:
         if self._window is None:
             return {}
         return {v: hessian_structure(build_problem(self._window.data, v, robust_px=self.settings.cauchy)) for v in variants}
@@ -537,9 +537,8 @@ class StereoEngine:
     def _keyframe(self, i: int, left: np.ndarray, right: np.ndarray, kp: Keypoints, tracked: "_Tracked", timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, message: str, reason: str) -> Snapshot:
         s = self.settings
         cam = self.camera
-        with_lines, mode = parse_variant(self._variant)
-        use_lines = with_lines or not s.skip_unused_stages
-        use_planes = mode != "wo" or not s.skip_unused_stages
+        use_lines = self._variant.with_lines or not s.skip_unused_stages
+        use_planes = self._variant.uses_planes or not s.skip_unused_stages
         k = self.keyframes
         rng = np.random.default_rng([s.seed, k, 0x57E])
         frames_per = max(frames, 1)
@@ -934,8 +933,7 @@ class StereoEngine:
             p = problem.point_positions(state)
             good = np.all(np.isfinite(p), axis=1)
             P.p_world[win.points[good]] = p[good]
-        with_lines, _ = parse_variant(self._variant)
-        if len(win.lines) and with_lines:
+        if len(win.lines) and self._variant.with_lines:
             m, v = problem.line_pluecker(state)
             norm = np.linalg.norm(v, axis=1, keepdims=True)
             good = np.all(np.isfinite(m), axis=1) & (norm[:, 0] > 1e-12)

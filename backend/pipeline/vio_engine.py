@@ -66,7 +66,7 @@ from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, PreparedImuFactor, im
 from backend.mapping.triangulation import triangulate_lines, triangulate_two_views
 from backend.optim import inertial
 from backend.optim.marginalization import marginalize, remap
-from backend.optim.problem import DistancePrior, ProblemData, parse_variant
+from backend.optim.problem import DistancePrior, ProblemData
 from backend.pipeline.engine import checkpoint_of
 from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
 from backend.pipeline.stereo_engine import (
@@ -445,9 +445,8 @@ class VioEngine(StereoEngine):
 
     def _vio_keyframe(self, i: int, left: np.ndarray, kp: Keypoints, tracked: _Tracked, timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, reason: str, bootstrap) -> Snapshot:  # noqa: ANN001
         s = self.settings
-        with_lines, mode = parse_variant(self._variant)
-        use_lines = with_lines or not s.skip_unused_stages
-        use_planes = mode != "wo" or not s.skip_unused_stages
+        use_lines = self._variant.with_lines or not s.skip_unused_stages
+        use_planes = self._variant.uses_planes or not s.skip_unused_stages
         k = self.keyframes
         rng = np.random.default_rng([s.seed, k, 0x57E])
         frames_per = max(frames, 1)

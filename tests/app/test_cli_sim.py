@@ -14,7 +14,8 @@ import pytest
 
 from app import cli
 from backend.eval import montecarlo, sequences
-from backend.optim.problem import VARIANTS, build_problem
+from backend.optim.problem import build_problem
+from backend.optim.variant import VARIANTS
 from backend.optim.structure import hessian_structure
 from tests.paper import PAPER_COUNTS_B as PAPER_COUNTS
 

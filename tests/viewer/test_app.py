@@ -147,7 +147,7 @@ def test_switching_variants_keeps_each_result_and_returns_to_it(sim_debugger) ->
     """Cycle the six variants at the newest keyframe and return: every variant started
     from the step's state, the stepped result comes back unchanged, and scrubbing back
     to that keyframe later still shows any variant computed there."""
-    from backend.optim.problem import VARIANTS
+    from backend.optim.variant import VARIANTS
 
     d = sim_debugger
     for _ in range(8):

@@ -10,7 +10,8 @@ import pytest
 from backend.eval import montecarlo, sequences
 from backend.geometry import line as line_geo
 from backend.geometry.se3 import Poses
-from backend.optim.problem import VARIANTS, ProblemData, State, build_problem
+from backend.optim.problem import ProblemData, State, build_problem
+from backend.optim.variant import VARIANTS
 from backend.optim.solver import optimize
 from tests.paper import PAPER_COUNTS_B as PAPER_COUNTS
 

@@ -91,12 +91,14 @@ def test_run_without_open3d_keeps_its_results_and_dense_says_why(monkeypatch: py
     """Without libusb (open3d cannot be imported) `run` still writes its results and the
     combined map, with a one-line warning; `--dense` refuses at once, one line, exit 2."""
     from app import cli
+    from backend.common import optional
     from backend.export import map_files
 
     def missing():  # noqa: ANN202
         raise MissingLibraryError("open3d cannot be imported: the system library libusb-1.0 is missing (Debian: apt-get install libusb-1.0-0)")
 
     monkeypatch.setattr(map_files, "require_open3d", missing)
+    monkeypatch.setattr(optional, "require_open3d", missing)
     out = tmp_path / "out"
     assert cli.main(["run", "--scene", "mc-b", "--variant", "PL-w", "--keyframes", "3", "--out", str(out)]) == 0
     err = capsys.readouterr().err

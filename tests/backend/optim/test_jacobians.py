@@ -9,7 +9,8 @@ from backend.eval import montecarlo, sequences
 from backend.geometry import so3
 from backend.geometry.se3 import Poses
 from backend.optim import factors
-from backend.optim.problem import VARIANTS, Observations, ProblemData, build_problem
+from backend.optim.problem import Observations, ProblemData, build_problem
+from backend.optim.variant import VARIANTS
 
 
 def _stereo_data(seed: int = 1) -> ProblemData:

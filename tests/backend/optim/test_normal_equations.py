@@ -7,7 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from backend.optim.problem import VARIANTS, build_problem
+from backend.optim.problem import build_problem
+
+from backend.optim.variant import VARIANTS
 from tests.backend.optim.test_jacobians import _stereo_data
 
 

@@ -11,7 +11,7 @@ import pytest
 from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
 from backend.eval.planes import recovered_planes
-from backend.optim.problem import VARIANTS
+from backend.optim.variant import VARIANTS
 from backend.pipeline.engine import EndOfSequence, Engine
 from backend.pipeline.overlay import decode_keyframe_image
 from backend.pipeline.snapshot import Snapshot
