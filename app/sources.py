@@ -175,30 +175,18 @@ def build_segmenter(args: argparse.Namespace, source=None):  # noqa: ANN001, ANN
     learned) for `source` (UsageError: a model file that cannot be used, or the oracle
     without a rendered scene; one line)."""
     from app.errors import UsageError
+    from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter
 
-    default = "learned" if getattr(args, "mode", "stereo") == "vio" else "geometric"
-    kind = getattr(args, "segmenter", None) or default
+    default = SegmenterKind.LEARNED if getattr(args, "mode", "stereo") == "vio" else SegmenterKind.GEOMETRIC
+    kind = SegmenterKind(getattr(args, "segmenter", None) or default)
     model = getattr(args, "segmenter_model", None)
-    if kind == "oracle":
-        if model is not None:
-            raise UsageError("--segmenter-model: only with --segmenter learned")
-        from backend.frontend.segmentation_oracle import OracleSegmenter
-
-        if source is None or not hasattr(source, "views"):
-            raise UsageError("--segmenter oracle: only with a rendered scene (it reads the renderer's plane ids)")
-        return OracleSegmenter(source)
-    if kind == "geometric":
-        if model is not None:
-            raise UsageError("--segmenter-model: only with --segmenter learned")
-        from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
-
-        return GeometricPlaneSegmenter()
-    from backend.frontend.segmentation_learned import LearnedSegmenter, LearnedSegmenterSettings, ModelError
-
+    if model is not None and kind is not SegmenterKind.LEARNED:
+        raise UsageError("--segmenter-model: only with --segmenter learned")
+    if kind is SegmenterKind.ORACLE and (source is None or not hasattr(source, "views")):
+        raise UsageError("--segmenter oracle: only with a rendered scene (it reads the renderer's plane ids)")
     try:
-        settings = LearnedSegmenterSettings() if model is None else LearnedSegmenterSettings(model=pathlib.Path(model))
-        return LearnedSegmenter(settings=settings)
-    except ModelError as e:
+        return make_segmenter(kind, source=source, model=None if model is None else pathlib.Path(model))
+    except SegmenterError as e:
         raise UsageError(str(e)) from None
 
 

@@ -29,6 +29,7 @@ import numpy as np
 import viser
 
 from backend.export.ply import snapshot_ply_bytes
+from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter, segmenter_kind
 from backend.optim.variant import VARIANT_NAMES, VARIANTS, Variant
 from backend.pipeline.engine import Engine, EndOfSequence
 from backend.pipeline.snapshot import Snapshot
@@ -47,7 +48,10 @@ PLOT_DEBOUNCE_S = 0.4  # plots are drawn once updates pause this long
 PLOT_PLAY_PERIOD_S = 1.0  # and while playing, at most this often
 VIEW_SETTLE_S = 1.5  # a view set by the debugger counts as untouched this long (the browser animates to it)
 AB_OFF = "off"
-ORACLE = "oracle (ground truth)"  # the segmenter of rendered scenes that reads the renderer's plane ids
+# The Segmenter menu: the oracle of rendered scenes reads the renderer's plane ids, and says so.
+SEGMENTER_LABELS: dict[SegmenterKind, str] = {
+    SegmenterKind.GEOMETRIC: "geometric", SegmenterKind.LEARNED: "learned", SegmenterKind.ORACLE: "oracle (ground truth)",
+}
 SHORTCUTS = "**keys**: space play/pause · → step · shift+← / shift+→ scrub · F frame all"
 
 
@@ -131,9 +135,11 @@ class Debugger:
             self.variant = gui.add_dropdown("Variant", VARIANT_NAMES, initial_value=str(self.engine.variant))
             self.segmenter = None
             if hasattr(self.engine, "segmenter"):  # image pipelines: plane instances from stereo, the network or (rendered) the truth
-                kinds = ("geometric", "learned") + ((ORACLE,) if hasattr(getattr(self.engine, "data_source", None), "views") else ())
-                current = {"LearnedSegmenter": "learned", "OracleSegmenter": ORACLE}.get(type(self.engine.segmenter).__name__, "geometric")
-                self.segmenter = gui.add_dropdown("Segmenter", kinds, initial_value=current)
+                kinds = [SegmenterKind.GEOMETRIC, SegmenterKind.LEARNED]
+                if hasattr(getattr(self.engine, "data_source", None), "views"):
+                    kinds.append(SegmenterKind.ORACLE)
+                current = SEGMENTER_LABELS[segmenter_kind(self.engine.segmenter)]
+                self.segmenter = gui.add_dropdown("Segmenter", tuple(SEGMENTER_LABELS[k] for k in kinds), initial_value=current)
             self.step_button = gui.add_button("Step")
             self.play = gui.add_checkbox("Play", initial_value=False)
             self.rate = gui.add_slider("Rate (Hz)", min=0.5, max=30.0, step=0.5, initial_value=self.settings.rate_hz)
@@ -216,7 +222,8 @@ class Debugger:
             @self.segmenter.on_update
             def _(event: viser.GuiEvent) -> None:
                 if event.client is not None:
-                    self._enqueue(Command.SEGMENTER, self.segmenter.value)
+                    kind = next(k for k, label in SEGMENTER_LABELS.items() if label == self.segmenter.value)
+                    self._enqueue(Command.SEGMENTER, kind)
 
         @self.ab_variant.on_update
         def _(event: viser.GuiEvent) -> None:
@@ -368,7 +375,7 @@ class Debugger:
         elif command is Command.COMPARE:
             self._update_compare()
         elif command is Command.SEGMENTER:
-            self._set_segmenter(str(arg))
+            self._set_segmenter(SegmenterKind(arg))  # type: ignore[arg-type]
 
     def _step(self) -> None:
         self._busy(f"stepping: keyframe {self.history.newest_keyframe + 1 if self.history else 0} …")
@@ -473,31 +480,20 @@ class Debugger:
             self.ab_variant.value = AB_OFF
         self.ab_text.content = f"*{why}*"
 
-    def _set_segmenter(self, kind: str) -> None:
+    def _set_segmenter(self, kind: SegmenterKind) -> None:
         """Plane instances from the next keyframe on: stereo disparity, the network, or on
         rendered scenes the renderer's exact plane ids (the oracle, a reference)."""
-        if kind == ORACLE:
-            from backend.frontend.segmentation_oracle import OracleSegmenter
-
-            segmenter = OracleSegmenter(self.engine.data_source)
-        elif kind == "learned":
-            from backend.frontend.segmentation_learned import LearnedSegmenter, ModelError
-
-            try:
-                segmenter = LearnedSegmenter()
-            except ModelError as e:
-                if self.segmenter is not None:
-                    self.segmenter.value = "geometric"
-                self._set_status(f"**error**: {e}")
-                return
-        else:
-            from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
-
-            segmenter = GeometricPlaneSegmenter()
+        try:
+            segmenter = make_segmenter(kind, source=getattr(self.engine, "data_source", None))
+        except SegmenterError as e:
+            if self.segmenter is not None:
+                self.segmenter.value = SEGMENTER_LABELS[SegmenterKind.GEOMETRIC]
+            self._set_status(f"**error**: {e}")
+            return
         for engine in (self.engine, self.engine_b):
             if engine is not None:
                 engine.segmenter = segmenter
-        self._set_status(f"plane instances from the {kind} segmenter from the next keyframe on")
+        self._set_status(f"plane instances from the {SEGMENTER_LABELS[kind]} segmenter from the next keyframe on")
 
     def _reset(self) -> None:
         self._busy("resetting …")
