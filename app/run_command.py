@@ -228,6 +228,7 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
     and, on rendered scenes, the distance of its vertices to the true planes (cm)."""
     import numpy as np
 
+    from backend.data.source import RenderedTruth
     from backend.eval.dense import distance_to_planes, fuse_keyframes, keyframe_frames, map_bounds
 
     frames = keyframe_frames(source, snapshot.estimate.timestamp_ns)
@@ -246,9 +247,8 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
         "voxel_m": fusion.voxel_m, "vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
         "distance_to_true_planes_cm": None,
     }
-    table = getattr(source, "plane_table", None)
-    if table is not None and len(mesh.vertices):
-        d = 100.0 * distance_to_planes(np.asarray(mesh.vertices), table)
+    if isinstance(source, RenderedTruth) and len(mesh.vertices):
+        d = 100.0 * distance_to_planes(np.asarray(mesh.vertices), source.plane_table)
         out["distance_to_true_planes_cm"] = {"median": float(np.median(d)), "p90": float(np.percentile(d, 90)), "within_2cm": float(np.mean(d < 2.0))}
     return out
 

@@ -175,6 +175,7 @@ def build_segmenter(args: argparse.Namespace, source=None):  # noqa: ANN001, ANN
     learned) for `source` (UsageError: a model file that cannot be used, or the oracle
     without a rendered scene; one line)."""
     from app.errors import UsageError
+    from backend.data.source import RenderedTruth
     from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter
 
     default = SegmenterKind.LEARNED if getattr(args, "mode", "stereo") == "vio" else SegmenterKind.GEOMETRIC
@@ -182,7 +183,7 @@ def build_segmenter(args: argparse.Namespace, source=None):  # noqa: ANN001, ANN
     model = getattr(args, "segmenter_model", None)
     if model is not None and kind is not SegmenterKind.LEARNED:
         raise UsageError("--segmenter-model: only with --segmenter learned")
-    if kind is SegmenterKind.ORACLE and (source is None or not hasattr(source, "views")):
+    if kind is SegmenterKind.ORACLE and not isinstance(source, RenderedTruth):
         raise UsageError("--segmenter oracle: only with a rendered scene (it reads the renderer's plane ids)")
     try:
         return make_segmenter(kind, source=source, model=None if model is None else pathlib.Path(model))

@@ -29,6 +29,7 @@ import numpy as np
 import viser
 
 from backend.export.ply import snapshot_ply_bytes
+from backend.data.source import RenderedTruth, StereoSource
 from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter, segmenter_kind
 from backend.optim.variant import VARIANT_NAMES, VARIANTS, Variant
 from backend.pipeline.engine import Engine, EndOfSequence
@@ -136,7 +137,7 @@ class Debugger:
             self.segmenter = None
             if hasattr(self.engine, "segmenter"):  # image pipelines: plane instances from stereo, the network or (rendered) the truth
                 kinds = [SegmenterKind.GEOMETRIC, SegmenterKind.LEARNED]
-                if hasattr(getattr(self.engine, "data_source", None), "views"):
+                if isinstance(getattr(self.engine, "data_source", None), RenderedTruth):
                     kinds.append(SegmenterKind.ORACLE)
                 current = SEGMENTER_LABELS[segmenter_kind(self.engine.segmenter)]
                 self.segmenter = gui.add_dropdown("Segmenter", tuple(SEGMENTER_LABELS[k] for k in kinds), initial_value=current)
@@ -169,7 +170,7 @@ class Debugger:
             self.layer_note = gui.add_markdown("")
             self.dense = None
             source = getattr(self.engine, "data_source", None)
-            if source is not None and hasattr(source, "rectified_pair"):  # image pipelines: depth to fuse
+            if isinstance(source, StereoSource):  # image pipelines: depth to fuse
                 self.dense_box = gui.add_checkbox("Dense mesh (TSDF)", initial_value=False)
                 from viewer.dense import DenseLayer
 

@@ -12,6 +12,7 @@ import time
 import numpy as np
 import viser
 
+from backend.data.source import RenderedTruth
 from backend.pipeline.snapshot import Snapshot
 
 NODE = "/dense/mesh"
@@ -93,9 +94,8 @@ class DenseLayer:
             return
         self.server.scene.add_mesh_simple(NODE, vertices=vertices, faces=faces, color=MESH_COLOR, material="toon3", side="double", cast_shadow=False, receive_shadow=False)  # as the plane patches: lit without the environment map
         text = f"*dense mesh of keyframe {snapshot.keyframe} ({fusion.keyframes} keyframes at their estimated poses, {fusion.voxel_m * 100:.0f} cm voxels): {len(faces)} triangles"
-        table = getattr(self.source, "plane_table", None)
-        if table is not None:
-            d = 100.0 * distance_to_planes(vertices, table)
+        if isinstance(self.source, RenderedTruth):
+            d = 100.0 * distance_to_planes(vertices, self.source.plane_table)
             text += f"; median distance to the true planes {np.median(d):.2f} cm"
         self.note.content = text + f"; built in {time.perf_counter() - t0:.1f} s*"
         self.built += 1

@@ -50,7 +50,7 @@ from backend.data.calibration import (
     stereo_rectification,
 )
 from backend.data.errors import DatasetError, read_text
-from backend.data.motion import ImuData
+from backend.data.motion import ImuData, ImuNoise
 from backend.geometry.camera import PinholeCamera
 from backend.common.native_output import native_stderr_silenced
 
@@ -206,6 +206,21 @@ class EurocDataset:
         frame (`imu_calibration.T_body_imu`; the identity, i.e. the body frame, in EuRoC).
         DatasetError (one line naming `imu0`) without IMU data (`has_imu` False)."""
         return self.imu.between(t0_ns, t1_ns)
+
+    @property
+    def imu_noise(self) -> ImuNoise:
+        """The IMU noise densities of `imu0/sensor.yaml` (DatasetError without `imu0`)."""
+        return self.imu_calibration.noise
+
+    @property
+    def T_body_rect0(self) -> np.ndarray:
+        """(4, 4) the rectified left camera in the body (IMU) frame, metres."""
+        return np.asarray(self.rectification.T_body_rect0, dtype=float)
+
+    @property
+    def imu_label(self) -> str:
+        """The IMU samples' file, for messages."""
+        return f"{self.root}/mav0/imu0/data.csv"
 
     def _no_imu_error(self) -> DatasetError:
         path, reason = self._no_imu

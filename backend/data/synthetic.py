@@ -118,6 +118,20 @@ class SyntheticSequence:
         """Noisy IMU samples with `t0_ns < t <= t1_ns` (body frame)."""
         return self.imu.between(t0_ns, t1_ns)
 
+    @property
+    def imu_noise(self) -> ImuNoise:
+        """The simulated IMU's noise densities."""
+        return self.settings.imu_noise
+
+    @property
+    def T_body_rect0(self) -> np.ndarray:
+        """(4, 4) the left camera in the body frame (rendered cameras are rectified already)."""
+        return np.asarray(self.T_body_cam0, dtype=float)
+
+    @property
+    def imu_label(self) -> str:
+        return "IMU"
+
     def views(self, index: int) -> tuple[View, View]:
         """Left and right views of frame `index` (image, depth along z in m, plane ids)."""
         index = range(len(self))[index]

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from backend.common.optional import require_open3d
+from backend.data.source import RenderedTruth
 from backend.geometry.camera import PinholeCamera
 
 
@@ -39,9 +40,8 @@ class DenseSettings:
 def keyframe_depth(source, index: int) -> np.ndarray:  # noqa: ANN001
     """Depth (H, W) float32 metres along the left camera's z of frame `index` (0: none): the
     renderer's depth where the source has it, else stereo semi-global matching."""
-    rendered = getattr(source, "left_depth", None)
-    if rendered is not None:
-        depth = np.asarray(rendered(index), dtype=np.float32)
+    if isinstance(source, RenderedTruth):
+        depth = np.asarray(source.left_depth(index), dtype=np.float32)
         return np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
     left, right = source.rectified_pair(index)
     return stereo_depth(left, right, source.camera)

@@ -27,7 +27,7 @@ from plyfile import PlyData, PlyElement
 
 from backend.common.atomic import atomic_path, write_bytes_atomic
 from backend.common.native_output import native_stderr_silenced
-from backend.common.optional import MissingLibraryError, require_open3d
+from backend.common.optional import require_open3d
 from backend.common.palette import plane_color
 from backend.export.ply import snapshot_ply_bytes
 from backend.pipeline.snapshot import Snapshot

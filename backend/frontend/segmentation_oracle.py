@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from backend.data.source import RenderedTruth
 from backend.frontend.segmentation import NO_PLANE, PlaneMasks
 
 
@@ -19,7 +20,7 @@ class OracleSegmenter:
     name = "oracle (ground-truth masks of the rendered scene)"
 
     def __init__(self, source, *, min_share: float = 0.01) -> None:  # noqa: ANN001
-        if not hasattr(source, "views"):
+        if not isinstance(source, RenderedTruth):
             raise ValueError("the oracle segmenter needs a rendered scene (its exact plane ids)")
         self.source = source
         self.min_share = float(min_share)

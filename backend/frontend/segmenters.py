@@ -13,6 +13,7 @@ from __future__ import annotations
 import enum
 import pathlib
 
+from backend.data.source import RenderedTruth
 from backend.frontend.segmentation import PlaneSegmenter
 
 
@@ -36,7 +37,7 @@ def make_segmenter(kind: SegmenterKind, *, source: object = None, model: pathlib
     if kind is SegmenterKind.ORACLE:
         from backend.frontend.segmentation_oracle import OracleSegmenter
 
-        if source is None or not hasattr(source, "views"):
+        if not isinstance(source, RenderedTruth):
             raise SegmenterError("the oracle segmenter needs a rendered scene (it reads the renderer's plane ids)")
         return OracleSegmenter(source)  # type: ignore[return-value]  # segments by frame (segment_frame)
     if kind is SegmenterKind.GEOMETRIC:

@@ -51,10 +51,10 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
-from typing import Protocol
 
 import numpy as np
 
+from backend.data.source import StereoSource
 from backend.eval.trajectory import ate_rmse, translational_rmse
 from backend.frontend.lines import LineSettings, Segments, StereoSegments, stereo_segments
 from backend.frontend.points import Keypoints, PointSettings, best_matches, detect_points, pair_hamming, stereo_points
@@ -88,23 +88,6 @@ from backend.pipeline.snapshot import (
 )
 from backend.pipeline.tracking import match_by_projection, merge_matches, refine_pose, relocalize
 
-
-
-class StereoSource(Protocol):
-    """The reader interface the engine needs (EuRoC folders and synthetic sequences)."""
-
-    timestamps_ns: np.ndarray
-    T_world_rect0: np.ndarray
-
-    @property
-    def camera(self) -> PinholeCamera: ...
-
-    @property
-    def ground_truth_valid(self) -> np.ndarray: ...
-
-    def __len__(self) -> int: ...
-
-    def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 @dataclasses.dataclass(frozen=True)

@@ -55,7 +55,8 @@ import time
 import cv2
 import numpy as np
 
-from backend.data.motion import ImuData, ImuNoise
+from backend.data.motion import ImuData
+from backend.data.source import RenderedTruth
 from backend.frontend.flow import FlowTracks, follow
 from backend.frontend.lines import Segments, detect_segments, match_segments_temporal
 from backend.frontend.points import Keypoints, best_matches, pair_hamming
@@ -147,28 +148,13 @@ class VioSettings(StereoSettings):
     alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2)
 
 
-def body_from_camera(source) -> np.ndarray:  # noqa: ANN001
-    """`T_body_camera` (4, 4) of the rectified left camera: EuRoC folders from their
-    rectification, rendered sequences from their rig."""
-    rect = getattr(source, "rectification", None)
-    return np.asarray(rect.T_body_rect0 if rect is not None else source.T_body_cam0, dtype=float)
-
-
-def imu_noise_of(source) -> ImuNoise:  # noqa: ANN001
-    """The IMU noise densities of the source (`imu0/sensor.yaml`, or the rendered settings)."""
-    calib = getattr(source, "imu_calibration", None)
-    if calib is not None and not callable(calib):
-        return calib.noise
-    return source.settings.imu_noise
-
-
 class VioEngine(StereoEngine):
     """The VIO pipeline (module docstring; implements :class:`~backend.pipeline.engine.Engine`)."""
 
     def __init__(self, source, *, settings: VioSettings = VioSettings(), name: str = "VIO sequence", segmenter: PlaneSegmenter | None = None, on_frame=None) -> None:  # noqa: ANN001
         self.imu: ImuData = source.imu  # DatasetError (one line) without imu0
-        self.imu_noise = imu_noise_of(source)
-        self.T_body_camera = body_from_camera(source)
+        self.imu_noise = source.imu_noise
+        self.T_body_camera = source.T_body_rect0
         self.imu_params = preintegration_params(self.imu_noise)
         if segmenter is None:
             from backend.frontend.segmentation_learned import LearnedSegmenter
@@ -924,7 +910,7 @@ class VioEngine(StereoEngine):
         """The alignment against the truth where the source has it (rendered scenes)."""
         out: dict = {}
         src = self.data_source
-        if hasattr(src, "bias_gyro") and hasattr(src, "trajectory"):
+        if isinstance(src, RenderedTruth):
             stamps = self._stamp[kfs]
             imu_t = src.imu.timestamp_ns
             at = np.clip(np.searchsorted(imu_t, stamps), 0, len(imu_t) - 1)
@@ -1041,7 +1027,7 @@ class VioEngine(StereoEngine):
         bias = np.array(self._bias[: k + 1]).reshape(-1, 6)
         truth_v = truth_b = None
         src = self.data_source
-        if hasattr(src, "trajectory") and hasattr(src, "bias_gyro"):
+        if isinstance(src, RenderedTruth):
             t = self._stamp[: k + 1] * 1e-9
             truth_v = src.trajectory.velocity(t)
             at = np.clip(np.searchsorted(src.imu.timestamp_ns, self._stamp[: k + 1]), 0, len(src.imu.timestamp_ns) - 1)
@@ -1059,8 +1045,7 @@ class VioEngine(StereoEngine):
 
         stamps = self.imu.timestamp_ns
         frames = np.asarray(self.data_source.timestamps_ns, dtype=np.int64)
-        where = getattr(self.data_source, "root", None)
-        label = f"{where}/mav0/imu0/data.csv" if where is not None else "IMU"
+        label = self.data_source.imu_label
         if len(stamps) < 2 or stamps[0] > frames[0] or stamps[-1] + DEFAULT_MAX_GAP_NS < frames[-1]:
             raise DatasetError(label, f"the IMU samples ({len(stamps)}) do not cover the camera frames")
         period = np.min(np.diff(frames)) if len(frames) > 1 else 0

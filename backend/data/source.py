@@ -1,0 +1,138 @@
+"""What an engine may ask of its input, and the readers that open an input by its files.
+
+Three protocols, each a set of attributes a source has or has not (never probed by name
+elsewhere):
+
+- :class:`StereoSource`: every input. Timestamps, the rectified left camera with its
+  baseline, rectified stereo pairs by index, and the ground-truth pose of the rectified
+  left camera where there is one. Stereo SLAM needs nothing else.
+- :class:`InertialSource`: also the IMU (samples, noise densities, where the IMU sits
+  relative to the rectified camera). VIO needs it; a source without IMU data raises a
+  one-line DatasetError when asked.
+- :class:`RenderedTruth`: the exact truth of a rendered scene (per-pixel plane ids and
+  depth, the planes, the continuous trajectory and the IMU biases), for the oracle
+  segmenter, the dense check and the VIO reports. Real recordings do not have it.
+
+The readers are a registry (`DATASET_FORMATS`): :func:`open_dataset` opens a path with the
+first format that recognizes its files. EuRoC ASL folders and rendered scene files are its
+entries; a new format is one reader module plus one entry here.
+
+Frames and units: timestamps in nanoseconds; poses `T_world_rect0` (4, 4) in metres, world
+z up; images uint8 grey (H, W) in the pixels of `camera`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+from collections.abc import Callable
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from backend.data.errors import DatasetError
+from backend.data.motion import ImuData, ImuNoise
+from backend.geometry.camera import PinholeCamera
+
+
+@runtime_checkable
+class StereoSource(Protocol):
+    """Every engine's input (module docstring)."""
+
+    timestamps_ns: np.ndarray  # (N,) int64
+    T_world_rect0: np.ndarray  # (N, 4, 4); NaN where there is no ground truth
+
+    @property
+    def camera(self) -> PinholeCamera: ...
+
+    @property
+    def ground_truth_valid(self) -> np.ndarray: ...  # (N,) bool
+
+    def __len__(self) -> int: ...
+
+    def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class InertialSource(StereoSource, Protocol):
+    """A stereo source with an IMU (module docstring). Not runtime-checkable on purpose:
+    asking a folder without IMU data for it is the one-line error VIO reports."""
+
+    @property
+    def has_imu(self) -> bool: ...
+
+    @property
+    def imu(self) -> ImuData: ...
+
+    def imu_between(self, t0_ns: int, t1_ns: int) -> ImuData: ...
+
+    @property
+    def imu_noise(self) -> ImuNoise: ...
+
+    @property
+    def T_body_rect0(self) -> np.ndarray: ...  # (4, 4): the rectified left camera in the IMU body frame
+
+    @property
+    def imu_label(self) -> str: ...  # where the IMU samples come from, for messages
+
+
+@runtime_checkable
+class RenderedTruth(Protocol):
+    """The exact truth of a rendered scene (module docstring)."""
+
+    plane_table: object  # plane id -> (n, d)
+    trajectory: object  # continuous body trajectory: position, rotation, velocity at times (s)
+    bias_gyro: np.ndarray  # (M,) per IMU sample, rad/s
+    bias_accel: np.ndarray  # (M,) per IMU sample, m/s²
+
+    def views(self, index: int) -> tuple[object, object]: ...  # left and right View (image, depth, plane ids)
+
+    def left_depth(self, index: int) -> np.ndarray: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class DatasetFormat:
+    """One reader of the registry: its name, whether a path holds its files, and how to open it."""
+
+    name: str
+    recognizes: Callable[[pathlib.Path], bool]
+    open: Callable[[pathlib.Path], StereoSource]
+
+
+def _is_euroc(path: pathlib.Path) -> bool:
+    return (path / "mav0").is_dir() or (path.name == "mav0" and path.is_dir())
+
+
+def _open_euroc(path: pathlib.Path) -> StereoSource:
+    from backend.data.euroc import EurocDataset
+
+    return EurocDataset(path)
+
+
+def _is_scene_file(path: pathlib.Path) -> bool:
+    return path.is_file() and path.suffix.lower() == ".json"
+
+
+def _open_scene_file(path: pathlib.Path) -> StereoSource:
+    from backend.data.scenes import SceneFileError, load_scene
+    from backend.data.synthetic import SyntheticSequence
+
+    try:
+        return SyntheticSequence(load_scene(path))  # type: ignore[return-value]
+    except SceneFileError as e:
+        raise DatasetError(e.path, e.reason) from None
+
+
+DATASET_FORMATS: tuple[DatasetFormat, ...] = (
+    DatasetFormat("EuRoC ASL folder (holding mav0)", _is_euroc, _open_euroc),
+    DatasetFormat("rendered scene file (.json, frames rendered on demand)", _is_scene_file, _open_scene_file),
+)
+
+
+def open_dataset(path: pathlib.Path | str) -> StereoSource:
+    """The input at `path`, read by the first format that recognizes it. A path no format
+    recognizes is read as an EuRoC folder, whose reader says in one line what is missing."""
+    path = pathlib.Path(path)
+    for fmt in DATASET_FORMATS:
+        if fmt.recognizes(path):
+            return fmt.open(path)
+    return DATASET_FORMATS[0].open(path)

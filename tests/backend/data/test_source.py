@@ -1,0 +1,70 @@
+"""The data-source protocols and the reader registry (backend/data/source.py)."""
+
+from __future__ import annotations
+
+import pathlib
+
+import numpy as np
+import pytest
+
+from backend.data.errors import DatasetError
+from backend.data.scenes import builtin_scene, scene_to_json
+from backend.data.source import DATASET_FORMATS, RenderedTruth, StereoSource, open_dataset
+from backend.data.synthetic import SequenceSettings, SyntheticSequence, render_sequence
+
+SHARED = pathlib.Path(__file__).resolve().parents[3].parent / "shared" / "data"
+
+
+@pytest.fixture(scope="module")
+def euroc(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
+    root = tmp_path_factory.mktemp("euroc")
+    render_sequence(builtin_scene("room"), root, settings=SequenceSettings(duration_s=0.2))
+    return root
+
+
+def test_a_euroc_folder_is_recognized_and_is_a_stereo_source_with_an_imu(euroc: pathlib.Path) -> None:
+    for path in (euroc, euroc / "mav0"):
+        source = open_dataset(path)
+        assert type(source).__name__ == "EurocDataset" and len(source) == 5
+        assert isinstance(source, StereoSource) and not isinstance(source, RenderedTruth)
+        assert source.imu_noise is not None and source.T_body_rect0.shape == (4, 4)  # type: ignore[attr-defined]
+        assert source.imu_label.endswith("mav0/imu0/data.csv")  # type: ignore[attr-defined]
+
+
+def test_a_scene_file_is_rendered_on_demand_with_its_truth(tmp_path: pathlib.Path) -> None:
+    path = tmp_path / "boxes.json"
+    path.write_text(scene_to_json(builtin_scene("boxes")))
+    source = open_dataset(path)
+    assert isinstance(source, SyntheticSequence) and isinstance(source, StereoSource) and isinstance(source, RenderedTruth)
+    left, right = source.rectified_pair(0)
+    assert left.dtype == np.uint8 and left.shape == right.shape
+    np.testing.assert_array_equal(source.T_body_rect0, source.T_body_cam0)
+
+
+@pytest.mark.parametrize(("make", "words"), [
+    (lambda p: p / "missing", "no such folder"),
+    (lambda p: p, "no mav0 folder"),
+    (lambda p: (p / "broken.json").write_text("{") and p / "broken.json", "invalid JSON"),
+])
+def test_what_no_reader_recognizes_is_one_line_naming_it(tmp_path: pathlib.Path, make, words: str) -> None:  # noqa: ANN001
+    path = make(tmp_path)
+    with pytest.raises(DatasetError) as error:
+        open_dataset(path)
+    assert words in str(error.value) and str(path) in str(error.value) and "\n" not in str(error.value)
+
+
+def test_every_format_is_named_and_the_euroc_reader_comes_first() -> None:
+    assert DATASET_FORMATS[0].name.startswith("EuRoC") and all(f.name for f in DATASET_FORMATS)
+
+
+@pytest.mark.skipif(not (SHARED / "euroc_mh01_slice").exists(), reason="../shared/data is absent")
+def test_the_real_mh01_slice_opens_as_euroc_without_an_imu() -> None:
+    source = open_dataset(SHARED / "euroc_mh01_slice")
+    assert isinstance(source, StereoSource) and len(source) == 300 and not source.has_imu  # type: ignore[attr-defined]
+    with pytest.raises(DatasetError, match="imu0"):
+        source.imu_noise  # type: ignore[attr-defined]  # noqa: B018
+
+
+def test_a_rendered_sequence_has_the_truth_a_folder_lacks() -> None:
+    seq = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=0.2))
+    assert isinstance(seq, RenderedTruth) and seq.imu_label == "IMU"
