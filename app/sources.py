@@ -17,13 +17,14 @@ from __future__ import annotations
 import argparse
 import math
 import pathlib
+from typing import TYPE_CHECKING
 
-MC_SCENES: dict[str, str] = {
-    "mc-a": "Monte-Carlo sequence a: four walls, camera on a circle (DESIGN §4)",
-    "mc-b": "Monte-Carlo sequence b: one wall, camera sliding along it",
-}
+from backend.pipeline.factory import CAMERA_RATE_HZ, MC_SCENES, EngineConfig, make_engine
+
+if TYPE_CHECKING:
+    from backend.frontend.segmenters import SegmenterKind
+
 MAX_DURATION_S = 3600.0  # the whole trajectory and its IMU samples are built up front
-CAMERA_RATE_HZ = 20.0  # rendered scenes' frame rate (before --stride)
 
 
 def scene_names() -> tuple[str, ...]:
@@ -86,20 +87,6 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
     p.set_defaults(duration_default=duration_default)
 
 
-class FirstFrames:
-    """The first `count` frames of a stereo reader (everything else delegated to it)."""
-
-    def __init__(self, source, count: int) -> None:  # noqa: ANN001
-        self._source = source
-        self._count = min(int(count), len(source))
-
-    def __len__(self) -> int:
-        return self._count
-
-    def __getattr__(self, name: str):  # noqa: ANN204
-        return getattr(self._source, name)
-
-
 def _refuse(args: argparse.Namespace, what: str, names: tuple[str, ...]) -> None:
     from app.errors import UsageError
 
@@ -125,26 +112,23 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
         raise UsageError(f"--frames {frames}: must be at least 1")
     scene = args.scene or default_scene()
 
-    if args.dataset is None and scene in MC_SCENES:
-        from backend.pipeline.sim_engine import SimEngine, SimSettings
+    from backend.data.synthetic import SequenceSettings
+    from backend.frontend.segmenters import SegmenterError, SegmenterKind
 
+    if args.dataset is None and scene in MC_SCENES:
         _refuse(args, f"the Monte-Carlo scene {scene} (no images)", ("--duration", "--frames", "--stride", "--speed", "--segmenter", "--segmenter-model"))
         if getattr(args, "mode", "stereo") != "stereo":
             raise UsageError(f"--mode {args.mode}: the Monte-Carlo scene {scene} has no images and no IMU")
         mislabel = 0.1 if args.mislabel is None else args.mislabel
         if not 0.0 <= mislabel <= 1.0:
             raise UsageError(f"--mislabel {args.mislabel}: must be a fraction in [0, 1]")
-        return SimEngine(SimSettings(sequence=scene[-1], seed=args.seed, variant=args.variant, window=args.window, mislabel=mislabel))
+        return make_engine(EngineConfig(scene=scene, seed=args.seed, variant=args.variant, window=args.window, mislabel=mislabel))
 
+    options: dict[str, object] = {}
     if args.dataset is not None:
-        from backend.data.euroc import EurocDataset
-
         _refuse(args, "--dataset", ("--duration", "--mislabel", "--stride", "--speed"))
-        source = EurocDataset(args.dataset)  # DatasetError: one line naming the bad file
-        name = f"EuRoC folder {args.dataset}"
+        options["dataset"] = args.dataset
     else:
-        from backend.data.synthetic import SequenceSettings, SyntheticSequence
-
         _refuse(args, f"the rendered scene {scene} (mc-a / mc-b only)", ("--mislabel",))
         stride = 1 if getattr(args, "stride", None) is None else args.stride
         if stride < 1:
@@ -155,64 +139,35 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
         duration = args.duration_default if args.duration is None else args.duration
         if not (math.isfinite(duration) and 0.0 < duration <= MAX_DURATION_S):
             raise UsageError(f"--duration {duration:g}: must be more than 0 and at most {MAX_DURATION_S:g} seconds")
-        scene_obj = load_scene_argument(scene, other_names=tuple(MC_SCENES))
+        load_scene_argument(scene, other_names=tuple(MC_SCENES))  # UsageError for a bad name or file, before anything runs
         try:
-            settings = SequenceSettings(duration_s=duration, seed=args.seed, camera_rate_hz=CAMERA_RATE_HZ / stride, speed=speed)
+            SequenceSettings(duration_s=duration, seed=args.seed, camera_rate_hz=CAMERA_RATE_HZ / stride, speed=speed)
         except ValueError as e:
             raise UsageError(f"--duration {duration:g}: {e}") from None
-        source = SyntheticSequence(scene_obj, settings=settings)  # frames rendered on demand
-        label = scene if scene == scene_obj.name else f"{scene_obj.name} from {scene}"
-        name = f"rendered scene {label} ({duration:g} s, seed {args.seed}{f', every {stride}th frame' if stride > 1 else ''}{f', {speed:g}× speed' if speed != 1.0 else ''})"
-    if frames is not None:
-        source = FirstFrames(source, frames)
-    if getattr(args, "mode", "stereo") == "vio":
-        return _vio_engine(source, name, args, headless=headless)
-    return _stereo_engine(source, name, args, headless=headless)
+        options.update(scene=scene, duration_s=duration, stride=stride, speed=speed)
+    mode = getattr(args, "mode", "stereo")
+    kind = segmenter_kind_argument(args)
+    config = EngineConfig(
+        **options, frames=frames, seed=args.seed, variant=args.variant, window=args.window, mode=mode,  # type: ignore[arg-type]
+        segmenter=getattr(args, "segmenter", None), segmenter_model=kind[1], interactive=not headless,
+    )
+    try:
+        return make_engine(config)  # DatasetError: one line naming the bad file
+    except SegmenterError as e:
+        if kind[0] is SegmenterKind.ORACLE:
+            raise UsageError("--segmenter oracle: only with a rendered scene (it reads the renderer's plane ids)") from None
+        raise UsageError(str(e)) from None
 
 
-def build_segmenter(args: argparse.Namespace, source=None):  # noqa: ANN001, ANN201
-    """The plane segmenter `--segmenter` names (the stereo default: geometric; VIO's:
-    learned) for `source` (UsageError: a model file that cannot be used, or the oracle
-    without a rendered scene; one line)."""
+def segmenter_kind_argument(args: argparse.Namespace) -> tuple[SegmenterKind, pathlib.Path | None]:
+    """`--segmenter` (the mode's default when absent) and `--segmenter-model`; UsageError for
+    a model file with another segmenter than the learned one."""
     from app.errors import UsageError
-    from backend.data.source import RenderedTruth
-    from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter
+    from backend.frontend.segmenters import SegmenterKind
 
     default = SegmenterKind.LEARNED if getattr(args, "mode", "stereo") == "vio" else SegmenterKind.GEOMETRIC
     kind = SegmenterKind(getattr(args, "segmenter", None) or default)
     model = getattr(args, "segmenter_model", None)
     if model is not None and kind is not SegmenterKind.LEARNED:
         raise UsageError("--segmenter-model: only with --segmenter learned")
-    if kind is SegmenterKind.ORACLE and not isinstance(source, RenderedTruth):
-        raise UsageError("--segmenter oracle: only with a rendered scene (it reads the renderer's plane ids)")
-    try:
-        return make_segmenter(kind, source=source, model=None if model is None else pathlib.Path(model))
-    except SegmenterError as e:
-        raise UsageError(str(e)) from None
-
-
-def _stereo_engine(source, name: str, args: argparse.Namespace, *, headless: bool):  # noqa: ANN001, ANN202
-    from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
-
-    if headless:
-        settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=True, image_scale=None, hessian=False)
-    else:
-        settings = StereoSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=False, hessian=True, image_scale=1.0)
-    segmenter = build_segmenter(args, source)
-    if getattr(args, "segmenter", None) in ("learned", "oracle"):
-        name = f"{name}, {args.segmenter} segmenter"
-    return StereoEngine(source, settings=settings, name=name, segmenter=segmenter)
-
-
-def _vio_engine(source, name: str, args: argparse.Namespace, *, headless: bool):  # noqa: ANN001, ANN202
-    """The VIO pipeline on `source` (DatasetError, one line, without `imu0` or with IMU gaps
-    longer than a frame interval)."""
-    from backend.pipeline.vio_engine import VioEngine, VioSettings
-
-    if headless:
-        settings = VioSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=True, image_scale=None, hessian=False)
-    else:
-        settings = VioSettings(variant=args.variant, window=args.window, seed=args.seed, skip_unused_stages=False, hessian=True, image_scale=1.0)
-    segmenter = build_segmenter(args, source)
-    kind = getattr(args, "segmenter", None) or "learned"
-    return VioEngine(source, settings=settings, name=f"{name}, VIO, {kind} segmenter", segmenter=segmenter)
+    return kind, None if model is None else pathlib.Path(model)

@@ -32,11 +32,11 @@ from tests.viewer.raw_client import CAMERA, RawClient, free_port  # noqa: E402
 
 
 def _debugger(scene: str):  # noqa: ANN202
-    from app.cli import build_parser
-    from app.serve_command import build_engine
+    from app.serve_command import DEFAULT_DURATION_S
+    from backend.pipeline.factory import EngineConfig, make_engine
     from viewer.app import Debugger
 
-    d = Debugger(build_engine(build_parser().parse_args(["serve", "--scene", scene])), port=free_port())
+    d = Debugger(make_engine(EngineConfig(scene=scene, duration_s=DEFAULT_DURATION_S, interactive=True)), port=free_port())
     d.server.scene.configure_environment_map(hdri=None)
     return d
 

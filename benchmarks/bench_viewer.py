@@ -90,12 +90,12 @@ def _clicks(page, n: int) -> tuple[list[float], list[float]]:  # noqa: ANN001
 
 def _room_debugger():  # noqa: ANN202
     """The debugger on the stereo pipeline over the rendered room (as `coplanar serve`)."""
-    from app.cli import build_parser
-    from app.serve_command import build_engine
+    from app.serve_command import DEFAULT_DURATION_S
+    from backend.pipeline.factory import EngineConfig, make_engine
     from tests.browser.conftest import free_port
     from viewer.app import Debugger
 
-    engine = build_engine(build_parser().parse_args(["serve", "--scene", "room"]))
+    engine = make_engine(EngineConfig(scene="room", duration_s=DEFAULT_DURATION_S, interactive=True))
     debugger = Debugger(engine, port=free_port())
     debugger.server.scene.configure_environment_map(hdri=None)
     return debugger

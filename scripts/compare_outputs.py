@@ -6,8 +6,8 @@ two records.
 
 `record` runs each command of CASES (`python -m app.cli` in this script's checkout, so a
 second worktree records its own code; one BLAS thread; one after the other) into OUT/NAME/ and writes OUT/manifest.json: per case, the SHA-256 of every output
-file, with the timings taken out of JSON files (any key containing "time" or "timing", and
-"wall_s") since they differ between any two runs. `compare` prints the cases whose files
+file, with the timings taken out of JSON files (any key containing "time", "timing" or "_ms",
+and "wall_s") since they differ between any two runs. `compare` prints the cases whose files
 differ and exits 1 if any do.
 """
 
@@ -36,7 +36,7 @@ CASES["sim-b"] = ["sim", "--sequence", "b", "--runs", "3"]
 
 def _strip_timings(value: object) -> object:
     if isinstance(value, dict):
-        return {k: _strip_timings(v) for k, v in value.items() if not ("time" in k or "timing" in k or k == "wall_s")}
+        return {k: _strip_timings(v) for k, v in value.items() if not ("time" in k or "timing" in k or "_ms" in k or k == "wall_s")}
     if isinstance(value, list):
         return [_strip_timings(v) for v in value]
     return value

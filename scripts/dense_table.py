@@ -21,8 +21,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from app.cli import build_parser  # noqa: E402
-from app.run_command import run  # noqa: E402
+from app import cli  # noqa: E402
 from backend.optim.variant import VARIANTS  # noqa: E402
 from euroc_table import _f, publish  # noqa: E402
 
@@ -37,7 +36,9 @@ def main() -> int:
     for variant in VARIANTS:
         with tempfile.TemporaryDirectory() as tmp:
             out = pathlib.Path(tmp) / "out"
-            run(build_parser().parse_args(["run", "--scene", args.scene, "--variant", variant, "--duration", str(args.duration), "--dense", "--out", str(out)]))
+            argv = ["run", "--scene", args.scene, "--variant", variant, "--duration", str(args.duration), "--dense", "--out", str(out)]
+            if cli.main(argv) != 0:
+                raise SystemExit(f"coplanar {' '.join(argv)} failed")
             m = json.loads((out / "metrics.json").read_text())
         d = m["dense"]
         dist = d["distance_to_true_planes_cm"]

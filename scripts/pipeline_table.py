@@ -21,7 +21,6 @@ import json
 import os
 import pathlib
 import sys
-import tempfile
 import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -31,9 +30,8 @@ import numpy as np  # noqa: E402
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.cli import build_parser  # noqa: E402
 from backend.eval.run_metrics import stereo_timing  # noqa: E402
-from app.sources import build_engine  # noqa: E402
+from backend.pipeline.factory import EngineConfig, make_engine  # noqa: E402
 from backend.eval.planes import recovered_planes  # noqa: E402
 from backend.optim.variant import VARIANTS  # noqa: E402
 from backend.pipeline.engine import EndOfSequence  # noqa: E402
@@ -41,10 +39,10 @@ from backend.pipeline.engine import EndOfSequence  # noqa: E402
 MIN_SHARE = 0.05
 
 
-def run_one(scene: str, variant: str, duration: float, *, extra: tuple[str, ...] = ()) -> dict:
-    with tempfile.TemporaryDirectory() as out:
-        args = build_parser().parse_args(["run", "--scene", scene, "--variant", variant, "--duration", str(duration), "--out", out, *extra])
-    engine = build_engine(args, headless=True)
+def run_one(scene: str, variant: str, duration: float, *, segmenter: str | None = None) -> dict:
+    """The headless engine `coplanar run --scene SCENE --variant V --duration D` runs, stepped
+    to the end: its figures and the ground-truth planes it recovered."""
+    engine = make_engine(EngineConfig(scene=scene, variant=variant, duration_s=duration, segmenter=segmenter))
     steps, lost, snapshot = [], 0, None
     t0 = time.perf_counter()
     while True:

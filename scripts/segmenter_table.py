@@ -27,7 +27,7 @@ def main() -> int:
     rows, runs = [], []
     for scene in args.scenes.split(","):
         for kind in ("geometric", "learned"):
-            r = run_scene(scene, args.variant, args.duration, extra=("--segmenter", kind))
+            r = run_scene(scene, args.variant, args.duration, segmenter=kind)
             runs.append({"input": scene, "segmenter": kind, **r})
             t = r["timing_ms"]
             rows.append(f"| {scene} | {kind} | {_f(r['ate_cm'])} | {r['planes_recovered']}/{r['planes_seen']} | {r['map_planes']} | {_f(t['plane_seg'], 1)} | {r['lost_frames']} |")

@@ -34,8 +34,8 @@ import numpy as np  # noqa: E402
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.cli import build_parser  # noqa: E402
-from app.sources import build_engine  # noqa: E402
+from app.serve_command import DEFAULT_DURATION_S  # noqa: E402
+from backend.pipeline.factory import EngineConfig, make_engine  # noqa: E402
 from backend.optim.variant import VARIANTS  # noqa: E402
 from backend.pipeline.snapshot import Snapshot  # noqa: E402
 
@@ -67,8 +67,7 @@ def main() -> None:
     args = parser.parse_args()
 
     def replay(variant: str = args.variant):  # noqa: ANN202
-        run_args = build_parser().parse_args(["serve", "--scene", args.scene, "--variant", variant, "--seed", str(args.seed)])
-        engine = build_engine(run_args, headless=False)
+        engine = make_engine(EngineConfig(scene=args.scene, variant=variant, seed=args.seed, duration_s=DEFAULT_DURATION_S, interactive=True))  # as `coplanar serve`
         for _ in range(args.keyframes):
             snapshot = engine.step()
         return engine, snapshot

@@ -26,8 +26,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from app.cli import build_parser  # noqa: E402
-from app.run_command import run  # noqa: E402
+from app import cli  # noqa: E402
 from euroc_table import publish  # noqa: E402
 from backend.optim.variant import VARIANTS  # noqa: E402
 
@@ -36,8 +35,9 @@ def run_one(scene: str, variant: str, mode: str, *, duration: float, speed: floa
     """`coplanar run` as a user runs it; its metrics.json."""
     with tempfile.TemporaryDirectory() as tmp:
         out = pathlib.Path(tmp) / "out"
-        args = build_parser().parse_args(["run", "--scene", scene, "--mode", mode, "--variant", variant, "--duration", str(duration), "--speed", str(speed), "--out", str(out), *extra])
-        run(args)
+        argv = ["run", "--scene", scene, "--mode", mode, "--variant", variant, "--duration", str(duration), "--speed", str(speed), "--out", str(out), *extra]
+        if cli.main(argv) != 0:
+            raise SystemExit(f"coplanar {' '.join(argv)} failed")
         return json.loads((out / "metrics.json").read_text())
 
 
