@@ -39,7 +39,7 @@ from backend.optim.problem import Observations, Odometry, PosePrior, ProblemData
 from backend.optim.variant import VARIANTS, Variant
 from backend.optim.solver import optimize
 from backend.optim.structure import HessianStructure, hessian_structure
-from backend.pipeline.buffers import RowBuffer
+from backend.common.buffers import RowBuffer
 from backend.pipeline.engine import EndOfSequence, checkpoint_of, restore_from
 from backend.pipeline.snapshot import (
     Detection,

@@ -62,14 +62,13 @@ from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
 from backend.geometry import line as line_geo
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
-from backend.geometry.se3 import Poses
 from backend.mapping import coplanar
-from backend.optim import factors
-from backend.optim.problem import Observations, ProblemData, build_problem
+from backend.mapping.map import KeyframeObservations, Map
+from backend.mapping.window import Window, WindowSettings, assemble_window, write_back
+from backend.optim.problem import ProblemData, build_problem
 from backend.optim.variant import Variant
 from backend.optim.solver import optimize
 from backend.optim.structure import HessianStructure, hessian_structure
-from backend.pipeline.buffers import RowBuffer
 from backend.pipeline.engine import EndOfSequence, checkpoint_of, restore_from
 from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED, draw_keyframe_image
 from backend.pipeline.snapshot import (
@@ -156,71 +155,6 @@ class StereoSettings:
             raise ValueError("window must be at least 2 keyframes")
 
 
-@dataclasses.dataclass
-class _KeyframeObs:
-    """What one keyframe observed: landmark ids, left pixels and right columns (NaN: no
-    stereo match) of points; left segments (start, end) and right segments (NaN: none)."""
-
-    point_id: np.ndarray
-    point_uv: np.ndarray
-    point_ur: np.ndarray
-    line_id: np.ndarray
-    line_uv: np.ndarray
-    line_ruv: np.ndarray
-
-
-@dataclasses.dataclass
-class _Window:
-    keyframe: int
-    data: ProblemData
-    kf: np.ndarray
-    points: np.ndarray
-    lines: np.ndarray
-    planes: np.ndarray
-
-
-class _Store:
-    """Landmark attributes as growable columns (RowBuffers), indexed by landmark id."""
-
-    def __init__(self, columns: dict[str, tuple[tuple[int, ...], type]]) -> None:
-        self._cols = {name: RowBuffer(shape, dtype=dtype) for name, (shape, dtype) in columns.items()}
-
-    def __len__(self) -> int:
-        return len(next(iter(self._cols.values())))
-
-    def __getattr__(self, name: str) -> RowBuffer:
-        try:
-            return self.__dict__["_cols"][name]
-        except KeyError:
-            raise AttributeError(name) from None
-
-    def add(self, **values: np.ndarray) -> np.ndarray:
-        """Append rows (one per entry of each column's values); returns their ids. `born`
-        (the keyframe from which re-observations are counted) defaults to the anchor."""
-        if "born" in self._cols and "born" not in values:
-            values["born"] = values["anchor"]
-        count = len(next(iter(values.values())))
-        start = len(self)
-        for name, col in self._cols.items():
-            for row in values[name]:
-                col.append(row)
-        return np.arange(start, start + count)
-
-
-def _point_store() -> _Store:
-    return _Store({
-        "p_world": ((3,), float), "ok": ((), bool), "anchor": ((), np.int64), "anchor_uv": ((2,), float), "anchor_ur": ((), float),
-        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64), "born": ((), np.int64),
-    })
-
-
-def _line_store() -> _Store:
-    return _Store({
-        "m": ((3,), float), "v": ((3,), float), "ok": ((), bool), "anchor": ((), np.int64), "anchor_uv": ((4,), float), "anchor_ruv": ((4,), float),
-        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64), "born": ((), np.int64),
-    })
-
-
 class StereoEngine:
     """The stereo pipeline (implements :class:`~backend.pipeline.engine.Engine`)."""
 
@@ -248,7 +182,7 @@ class StereoEngine:
 
     @property
     def keyframes(self) -> int:
-        return len(self._t_est)
+        return len(self.map)
 
     @property
     def frames(self) -> int:
@@ -266,27 +200,12 @@ class StereoEngine:
 
     def reset(self) -> None:
         self._next_frame = 0
-        self._R_est = RowBuffer((3, 3))
-        self._t_est = RowBuffer((3,))
-        self._R_gt = RowBuffer((3, 3))
-        self._t_gt = RowBuffer((3,))
-        self._stamp = RowBuffer((), dtype=np.int64)
-        self._kf_frame = RowBuffer((), dtype=np.int64)
-        # Every tracked frame: its index, reference keyframe and pose T_refkf_frame.
-        self._fr_frame = RowBuffer((), dtype=np.int64)
-        self._fr_ref = RowBuffer((), dtype=np.int64)
-        self._fr_R = RowBuffer((3, 3))
-        self._fr_t = RowBuffer((3,))
-        self._obs: dict[int, _KeyframeObs] = {}
-        self._points = _point_store()
-        self._lines = _line_store()
-        self._planes = coplanar.PlaneSet()
-        self._segment_start = 0  # first keyframe of the current map segment
+        self.map = Map(self.camera)
         self._local_points = np.zeros(0, np.int64)
         self._local_lines = np.zeros(0, np.int64)
         self._frame_poses: list[tuple[int, np.ndarray, np.ndarray]] = []  # (frame, R, t) of the last two frames
         self._last_kf_tracked = 0
-        self._window: _Window | None = None
+        self._window: Window | None = None
         self._last: Snapshot | None = None
         self._messages: list[str] = []
 
@@ -314,7 +233,7 @@ class StereoEngine:
                 if len(kp.uv) >= 3 * s.min_tracking_inliers:
                     # Features but no pose: a new map segment from this frame's stereo.
                     reinitializations += 1
-                    self._segment_start = self.keyframes
+                    self.map.segment_start = self.keyframes
                     self._local_points = np.zeros(0, np.int64)
                     self._local_lines = np.zeros(0, np.int64)
                     tracked = _Tracked(tracked.R, tracked.t, np.zeros(0, np.int64), 0, True)
@@ -324,7 +243,7 @@ class StereoEngine:
                     continue
             if reason:
                 break
-            self._record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
+            self.map.record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
         return self._keyframe(i, left, right, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, message="; ".join(messages), reason=reason)
 
     def _read_frame(self, timing: dict[str, float]) -> tuple[int, np.ndarray, np.ndarray, Keypoints]:
@@ -359,11 +278,7 @@ class StereoEngine:
     def frame_trajectory(self) -> FrameTrajectory:
         """Every tracked frame so far (lost frames left out), in frame order, at its pose
         relative to its reference keyframe composed with that keyframe's latest estimate."""
-        ref = self._fr_ref[:].copy()
-        frame = self._fr_frame[:].copy()
-        R_kf, t_kf = self._R_est[ref], self._t_est[ref]
-        R = so3.project_to_so3(R_kf @ self._fr_R[:]) if len(ref) else np.zeros((0, 3, 3))
-        t = np.einsum("nij,nj->ni", R_kf, self._fr_t[:]) + t_kf
+        frame, ref, R, t = self.map.frame_poses()
         stamp = np.asarray(self.data_source.timestamps_ns, dtype=np.int64)[frame]
         R_gt = np.full((len(frame), 3, 3), np.nan)
         t_gt = np.full((len(frame), 3), np.nan)
@@ -371,7 +286,7 @@ class StereoEngine:
             valid = np.asarray(self.data_source.ground_truth_valid, dtype=bool)[frame]
             T = np.asarray(self.data_source.T_world_rect0)[frame[valid]]
             R_gt[valid], t_gt[valid] = T[:, :3, :3], T[:, :3, 3]
-        kf_frame = self._kf_frame[:]
+        kf_frame = self.map.keyframe_frame[:]
         is_kf = kf_frame[ref] == frame
         return FrameTrajectory(
             frame=frozen(frame), reference_keyframe=frozen(ref), is_keyframe=frozen(is_kf),
@@ -392,14 +307,6 @@ class StereoEngine:
             return T[:3, :3].copy(), T[:3, 3].copy()
         return np.eye(3), np.zeros(3)
 
-    def _record_frame(self, i: int, ref: int, R: np.ndarray, t: np.ndarray) -> None:
-        """Frame i tracked at world pose (R, t): keep T_refkf_frame against keyframe `ref`."""
-        R_ref, t_ref = self._R_est[ref], self._t_est[ref]
-        self._fr_frame.append(i)
-        self._fr_ref.append(ref)
-        self._fr_R.append(R_ref.T @ R)
-        self._fr_t.append(R_ref.T @ (t - t_ref))
-
     def _remember_frame(self, i: int, R: np.ndarray, t: np.ndarray) -> None:
         self._frame_poses = (self._frame_poses + [(i, R, t)])[-2:]
 
@@ -419,7 +326,7 @@ class StereoEngine:
         ids = self._local_points
         if len(ids) == 0 or len(kp.uv) == 0:
             return _Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
-        P, D = self._points.p_world[ids], self._points.desc[ids]
+        P, D = self.map.points.p_world[ids], self.map.points.desc[ids]
         match = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
         result = self._refine(R, t, P, D, kp, match)
         if result.ok:
@@ -454,10 +361,10 @@ class StereoEngine:
 
     def _last_keyframe_points(self) -> np.ndarray:
         """Indices into the local map of the points the last keyframe observed."""
-        if not self._obs:
+        if not self.map.observations:
             return np.zeros(0, np.int64)
-        seen = self._obs[self.keyframes - 1].point_id
-        return np.flatnonzero(np.isin(self._local_points, seen[self._points.ok[seen]]))
+        seen = self.map.observations[self.keyframes - 1].point_id
+        return np.flatnonzero(np.isin(self._local_points, seen[self.map.points.ok[seen]]))
 
     def _refine(self, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, match: np.ndarray, *, widen: bool = False,
                 min_inliers: int | None = None, keep_matches: bool = False) -> "_Tracked":
@@ -491,7 +398,7 @@ class StereoEngine:
         s = self.settings
         if not tracked.ok:
             return ""
-        gap = i - int(self._kf_frame[-1])
+        gap = i - int(self.map.keyframe_frame[-1])
         new_fraction = 1.0 - tracked.inliers / max(len(kp.uv), 1)
         if gap >= s.min_keyframe_gap and tracked.inliers > s.min_tracked_points and new_fraction >= s.min_new_fraction:
             return "rule"
@@ -510,7 +417,7 @@ class StereoEngine:
             return 1.0
         j, R0, t0 = self._frame_poses[-1]
         R_next, t_next = _extrapolate(R0, t0, tracked.R, tracked.t, 1.0 / max(i - j, 1))
-        p_cam = (self._points.p_world[self._local_points[matched]] - t_next) @ R_next
+        p_cam = (self.map.points.p_world[self._local_points[matched]] - t_next) @ R_next
         front = p_cam[:, 2] > self.settings.min_depth_m
         uv = self.camera.project(p_cam[front])
         return float(np.count_nonzero(self.camera.in_image(uv))) / len(matched)
@@ -550,11 +457,11 @@ class StereoEngine:
         mp = np.flatnonzero(p_match >= 0)
         ml = np.flatnonzero(l_match >= 0)
         if len(mp) >= s.min_tracking_inliers:
-            lines_world = (self._lines.m[local_l[ml]], self._lines.v[local_l[ml]]) if len(ml) else None
+            lines_world = (self.map.lines.m[local_l[ml]], self.map.lines.v[local_l[ml]]) if len(ml) else None
             seg_uv = np.concatenate([segs.left.start[l_match[ml]], segs.left.end[l_match[ml]]], axis=1) if len(ml) else None
-            ref = refine_pose(cam, R, t, self._points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]], lines_world=lines_world, segments_uv=seg_uv, sigma_px=s.pixel_sigma, cauchy=s.cauchy)
+            ref = refine_pose(cam, R, t, self.map.points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]], lines_world=lines_world, segments_uv=seg_uv, sigma_px=s.pixel_sigma, cauchy=s.cauchy)
             R, t = ref.R_world_camera, ref.t_world_camera
-            err = _pixel_errors(cam, R, t, self._points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]])
+            err = _pixel_errors(cam, R, t, self.map.points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]])
             p_match = p_match.copy()
             p_match[mp[~(err < s.outlier_px)]] = -1
         timing["tracking"] += 1e3 * (time.perf_counter() - t0) / frames_per
@@ -573,7 +480,7 @@ class StereoEngine:
         # 4. Plane segmentation and co-planar detection, 5. window bundle adjustment, 6. culling.
         masks, detection, report, hessian = self._detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=(left, right) if use_planes else None)
         if self._frame_poses:  # the motion model continues from the optimized keyframe pose
-            self._frame_poses[-1] = (i, self._R_est[k].copy(), self._t_est[k].copy())
+            self._frame_poses[-1] = (i, self.map.R_world_keyframe[k].copy(), self.map.t_world_keyframe[k].copy())
 
         image = None
         if s.image_scale is not None:
@@ -594,8 +501,8 @@ class StereoEngine:
         the solver report and the Hessian image."""
         masks: PlaneMasks | None = None
         detection = Detection((), (), (), (), ())
-        p_ids = obs.point_id[self._points.ok[obs.point_id]]
-        l_ids = obs.line_id[self._lines.ok[obs.line_id]]
+        p_ids = obs.point_id[self.map.points.ok[obs.point_id]]
+        l_ids = obs.line_id[self.map.lines.ok[obs.line_id]]
         self._det_state = (p_ids, np.zeros(len(p_ids), np.uint8), l_ids, np.zeros(len(l_ids), np.uint8))
         timing["plane_seg"] = timing["plane_fit"] = 0.0
         if images is not None:
@@ -621,23 +528,14 @@ class StereoEngine:
         return self.segmenter.segment(left, right, self.camera)
 
     def _add_keyframe(self, i: int, R: np.ndarray, t: np.ndarray) -> None:
-        self._R_est.append(R)
-        self._t_est.append(t)
-        if bool(self.data_source.ground_truth_valid[i]):
-            T = self.data_source.T_world_rect0[i]
-            self._R_gt.append(T[:3, :3])
-            self._t_gt.append(T[:3, 3])
-        else:
-            self._R_gt.append(np.full((3, 3), np.nan))
-            self._t_gt.append(np.full(3, np.nan))
-        self._stamp.append(int(self.data_source.timestamps_ns[i]))
-        self._kf_frame.append(i)
-        self._record_frame(i, len(self._t_est) - 1, R, t)  # its own reference: identity
+        """Frame i becomes a keyframe at (R, t), with its true pose where the input has it."""
+        T_true = self.data_source.T_world_rect0[i] if bool(self.data_source.ground_truth_valid[i]) else None
+        self.map.add_keyframe(i, R, t, stamp_ns=int(self.data_source.timestamps_ns[i]), T_world_true=T_true)
 
-    def _observe(self, k: int, R: np.ndarray, t: np.ndarray, kp: Keypoints, stereo, local_p: np.ndarray, p_match: np.ndarray, segs: StereoSegments | None, local_l: np.ndarray, l_match: np.ndarray) -> tuple[_KeyframeObs, np.ndarray, np.ndarray]:  # noqa: ANN001
+    def _observe(self, k: int, R: np.ndarray, t: np.ndarray, kp: Keypoints, stereo, local_p: np.ndarray, p_match: np.ndarray, segs: StereoSegments | None, local_l: np.ndarray, l_match: np.ndarray) -> tuple[KeyframeObservations, np.ndarray, np.ndarray]:  # noqa: ANN001
         """Record keyframe k's observations of map landmarks and create new ones from stereo."""
         s = self.settings
-        P, Lm = self._points, self._lines
+        P, Lm = self.map.points, self.map.lines
         mp = np.flatnonzero(p_match >= 0)
         j = p_match[mp]
         tracked_ids = local_p[mp]
@@ -689,8 +587,8 @@ class StereoEngine:
             self._line_seg_index = sel
         else:
             self._line_seg_index = np.zeros(0, np.int64)
-        obs = _KeyframeObs(point_id, stereo.uv_left[point_kp], stereo.u_right[point_kp], line_id, line_uv, line_ruv)
-        self._obs[k] = obs
+        obs = KeyframeObservations(point_id, stereo.uv_left[point_kp], stereo.u_right[point_kp], line_id, line_uv, line_ruv)
+        self.map.observations[k] = obs
         return obs, new_points, new_lines
 
     def _match_lines(self, R: np.ndarray, t: np.ndarray, ids: np.ndarray, segments: Segments) -> np.ndarray:
@@ -702,7 +600,7 @@ class StereoEngine:
         out = np.full(len(ids), -1, np.int64)
         if len(ids) == 0 or len(segments) == 0:
             return out
-        seg_w = self._segments_world(ids)
+        seg_w = self.map.segments_world(ids)
         p_cam = (seg_w - t) @ R
         front = np.all(p_cam[..., 2] > s.min_depth_m, axis=1)
         uv = np.full((len(ids), 2, 2), np.nan)
@@ -723,30 +621,15 @@ class StereoEngine:
         rows, cols = np.nonzero(allowed)
         if len(rows) == 0:
             return out
-        dist = pair_hamming(self._lines.desc[ids[rows]], segments.descriptors[cols])
+        dist = pair_hamming(self.map.lines.desc[ids[rows]], segments.descriptors[cols])
         return best_matches(rows, cols, dist, n_rows=len(ids), max_distance=s.lines.max_hamming, ratio=s.lines.ratio)
 
-    def _segments_world(self, ids: np.ndarray) -> np.ndarray:
-        """World segments (L, 2, 3): the points of each line nearest its anchor endpoint rays."""
-        if len(ids) == 0:
-            return np.zeros((0, 2, 3))
-        a = self._lines.anchor[ids]
-        R_a, t_a = self._R_est[a], self._t_est[a]
-        m, v = self._lines.m[ids], self._lines.v[ids]
-        ends = []
-        for j in (0, 2):
-            x = self.camera.normalize(self._lines.anchor_uv[ids][:, j : j + 2])
-            w = np.einsum("mij,mj->mi", R_a, x)
-            P, _, _ = factors.line_point_nearest_ray(m, v, t_a, w)
-            ends.append(P)
-        return np.stack(ends, axis=1)
-
-    def _detect_planes(self, obs: _KeyframeObs, masks: PlaneMasks, new_points: np.ndarray, new_lines: np.ndarray, rng: np.random.Generator) -> Detection:
+    def _detect_planes(self, obs: KeyframeObservations, masks: PlaneMasks, new_points: np.ndarray, new_lines: np.ndarray, rng: np.random.Generator) -> Detection:
         """Co-planar detection on the keyframe (paper §III-A), features labelled by the
         instance masks: a point by its pixel, a segment when both endpoints (pulled 3 px
         inward) fall in the same instance."""
         labels = masks.labels
-        P, Lm = self._points, self._lines
+        P, Lm = self.map.points, self.map.lines
         p_sel = P.ok[obs.point_id]
         l_sel = Lm.ok[obs.line_id]
         p_ids, l_ids = obs.point_id[p_sel], obs.line_id[l_sel]
@@ -758,15 +641,15 @@ class StereoEngine:
         lab_e = _labels_at(labels, seg[:, 2:] - 3.0 * direction)
         l_lab = np.where(lab_s == lab_e, lab_s, -1)
         det = coplanar.detect_keyframe_planes(
-            point_ids=p_ids, point_label=p_lab, p_world=P.p_world[p_ids], line_ids=l_ids, line_label=l_lab, segments_world=self._segments_world(l_ids),
-            point_plane=P.plane[:], line_plane=Lm.plane[:], planes=self._planes, rng=rng, settings=self.settings.coplanar,
+            point_ids=p_ids, point_label=p_lab, p_world=P.p_world[p_ids], line_ids=l_ids, line_label=l_lab, segments_world=self.map.segments_world(l_ids),
+            point_plane=P.plane[:], line_plane=Lm.plane[:], planes=self.map.planes, rng=rng, settings=self.settings.coplanar,
         )
         # New landmarks the detection did not place: test them against the existing planes.
         pts = new_points[P.plane[new_points] < 0]
         lns = new_lines[Lm.plane[new_lines] < 0]
-        if len(self._planes) and (len(pts) or len(lns)):
-            N, D = self._planes.arrays()
-            q_p, q_l = coplanar.associate_to_planes(P.p_world[pts], self._segments_world(lns), N, D, [self._hull(q) for q in range(len(N))], threshold_m=self.settings.coplanar.threshold_m)
+        if len(self.map.planes) and (len(pts) or len(lns)):
+            N, D = self.map.planes.arrays()
+            q_p, q_l = coplanar.associate_to_planes(P.p_world[pts], self.map.segments_world(lns), N, D, [self.map.hull(q) for q in range(len(N))], threshold_m=self.settings.coplanar.threshold_m)
             P.plane[pts[q_p >= 0]] = q_p[q_p >= 0]
             Lm.plane[lns[q_l >= 0]] = q_l[q_l >= 0]
         self._det_state = (p_ids, det.point_state, l_ids, det.line_state)
@@ -776,117 +659,39 @@ class StereoEngine:
                 self._instance_plane[q] = plane
         return Detection(det.instance, det.candidates, det.inliers, det.accepted, det.plane)
 
-    def _plane_support(self, q: int) -> np.ndarray:
-        """World points (K, 3) of plane q's landmarks: its points and its segments' endpoints."""
-        P, Lm = self._points, self._lines
-        pts = [P.p_world[(P.plane[:] == q) & P.ok[:]]]
-        lines = np.flatnonzero((Lm.plane[:] == q) & Lm.ok[:])
-        if len(lines):
-            pts.append(self._segments_world(lines).reshape(-1, 3))
-        return np.concatenate(pts)
-
-    def _hull(self, q: int) -> np.ndarray:
-        return coplanar.plane_hull(self._planes.n[q], self._planes.d[q], self._plane_support(q))
-
     # ------------------------------------------------------------------ window bundle adjustment
 
     def _window_range(self, k: int) -> tuple[int, int]:
         s = self.settings
-        w0 = max(self._segment_start, k - s.window + 1)
-        return w0, max(self._segment_start, w0 - s.fixed_horizon)
+        w0 = max(self.map.segment_start, k - s.window + 1)
+        return w0, max(self.map.segment_start, w0 - s.fixed_horizon)
 
-    def _window_data(self, k: int) -> _Window:
+    def _window_data(self, k: int) -> Window:
         s = self.settings
-        cam = self.camera
-        P, Lm = self._points, self._lines
         w0, oldest = self._window_range(k)
-        win = [self._obs[j] for j in range(w0, k + 1)]
-        pts = np.unique(np.concatenate([o.point_id for o in win]))
-        pts = pts[P.ok[pts]]
-        lns = np.unique(np.concatenate([o.line_id for o in win]))
-        lns = lns[Lm.ok[lns]]
-        pts, lns = self._window_landmarks(pts, lns, w0)
-        p_local = np.full(len(P), -1)
-        p_local[pts] = np.arange(len(pts))
-        l_local = np.full(len(Lm), -1)
-        l_local[lns] = np.arange(len(lns))
-
-        # Observations from [oldest, k]; anchors older than that enter from the stored anchor view.
-        rows_p, rows_l = [], []
-        for j in range(oldest, k + 1):
-            o = self._obs[j]
-            sp = p_local[o.point_id] >= 0
-            rows_p.append((np.full(int(sp.sum()), j), o.point_id[sp], o.point_uv[sp], o.point_ur[sp]))
-            sl = l_local[o.line_id] >= 0
-            rows_l.append((np.full(int(sl.sum()), j), o.line_id[sl], o.line_uv[sl], o.line_ruv[sl]))
-        old_p = pts[P.anchor[pts] < oldest]
-        rows_p.append((P.anchor[old_p], old_p, P.anchor_uv[old_p], P.anchor_ur[old_p]))
-        old_l = lns[Lm.anchor[lns] < oldest]
-        rows_l.append((Lm.anchor[old_l], old_l, Lm.anchor_uv[old_l], Lm.anchor_ruv[old_l]))
-        kf_p, id_p, uv_p, ur_p = (np.concatenate(c) for c in zip(*rows_p))
-        kf_l, id_l, uv_l, ruv_l = (np.concatenate(c) for c in zip(*rows_l))
-        uv_p, uv_l, ruv_l = uv_p.reshape(-1, 2), uv_l.reshape(-1, 4), ruv_l.reshape(-1, 4)
-
-        kfs = np.unique(np.concatenate([kf_p, kf_l, np.arange(w0, k + 1)]))
-        local = np.searchsorted
-        fixed = kfs < w0
-        if not np.any(fixed) and self._fix_first_pose():
-            fixed[0] = True  # the gauge: the segment's first keyframe
-        # Stereo: each right-image observation is a second camera `baseline` to the right.
-        offset = cam.offset_right
-        has_r = np.isfinite(ur_p)
-        p_obs = Observations(
-            np.concatenate([p_local[id_p], p_local[id_p[has_r]]]),
-            local(kfs, np.concatenate([kf_p, kf_p[has_r]])),
-            np.concatenate([uv_p, np.stack([ur_p[has_r], uv_p[has_r, 1]], axis=1)]),
-            np.concatenate([np.zeros((len(id_p), 3)), np.tile(offset, (int(has_r.sum()), 1))]),
-        )
-        has_rl = np.all(np.isfinite(ruv_l), axis=1)
-        l_obs = Observations(
-            np.concatenate([l_local[id_l], l_local[id_l[has_rl]]]),
-            local(kfs, np.concatenate([kf_l, kf_l[has_rl]])),
-            np.concatenate([uv_l, ruv_l[has_rl]]),
-            np.concatenate([np.zeros((len(id_l), 3)), np.tile(offset, (int(has_rl.sum()), 1))]),
+        return assemble_window(
+            self.map, k, w0=w0, oldest=oldest, settings=WindowSettings(s.min_depth_m, s.pixel_sigma, s.min_plane_support),
+            fix_first=self._fix_first_pose(), keep_landmarks=self._keep_landmarks(w0), extra_planes=self._extra_window_planes(),
         )
 
-        owner = np.concatenate([P.plane[pts], Lm.plane[lns]])
-        support = np.bincount(owner[owner >= 0], minlength=len(self._planes))
-        planes = self._window_planes(np.flatnonzero(support >= s.min_plane_support))
-        q_local = np.full(len(self._planes) + 1, -1)
-        q_local[planes] = np.arange(len(planes))
+    def _keep_landmarks(self, w0: int) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None:
+        """Which of the landmarks the window's keyframes observe its problem keeps (None:
+        all of them here; VIO leaves out those marginalized with their anchor)."""
+        return None
 
-        R, t = self._R_est[kfs].copy(), self._t_est[kfs].copy()
-        a_p = local(kfs, P.anchor[pts])
-        p_a = np.einsum("nji,nj->ni", R[a_p], P.p_world[pts] - t[a_p])
-        rho = 1.0 / np.clip(p_a[:, 2], s.min_depth_m, None)
-        U, phi = line_geo.to_orthonormal(Lm.m[lns], Lm.v[lns]) if len(lns) else (np.zeros((0, 3, 3)), np.zeros((0, 2)))
-        N, D = self._planes.arrays()
-        data = ProblemData(
-            camera=cam, poses=Poses(R, t),
-            point_anchor=a_p, point_anchor_uv=P.anchor_uv[pts], point_rho=rho, point_plane=q_local[P.plane[pts]], point_obs=p_obs,
-            line_anchor=local(kfs, Lm.anchor[lns]), line_anchor_uv=Lm.anchor_uv[lns], line_U=U, line_phi=phi, line_plane=q_local[Lm.plane[lns]], line_obs=l_obs,
-            plane_n=N[planes], plane_d=D[planes], odometry=None, prior=None, sigma_px=s.pixel_sigma, fixed_poses=fixed,
-        )
-        return _Window(k, data, kfs, pts, lns, planes)
-
-    def _window_landmarks(self, pts: np.ndarray, lns: np.ndarray, w0: int) -> tuple[np.ndarray, np.ndarray]:
-        """The landmarks of the window's problem among those its keyframes observe (all of
-        them here; VIO leaves out those marginalized with their anchor)."""
-        return pts, lns
-
-    def _window_planes(self, planes: np.ndarray) -> np.ndarray:
-        """The planes of the window's problem (VIO adds those its prior holds)."""
-        return planes
+    def _extra_window_planes(self) -> np.ndarray | None:
+        """Planes the window optimizes besides those its landmarks support (VIO: its prior's)."""
+        return None
 
     def _fix_first_pose(self) -> bool:
         """Whether the first window pose is held as the gauge when no older one is."""
         return True
 
-    def _problem_data(self, win: _Window) -> ProblemData:
+    def _problem_data(self, win: Window) -> ProblemData:
         """The window's data as solved (VIO adds the inertial part)."""
         return win.data
 
-    def _after_solve(self, win: _Window, problem, state) -> None:  # noqa: ANN001
+    def _after_solve(self, win: Window, problem, state) -> None:  # noqa: ANN001
         """Called with the window's solution after the map is updated (VIO: velocities,
         biases, marginalization)."""
 
@@ -908,24 +713,7 @@ class StereoEngine:
         timing["linearize"] = rep.linearize_ms
         timing["solve"] = rep.solve_ms
         t0 = time.perf_counter()
-        kf_free = win.kf[free]
-        self._R_est[kf_free] = state.poses.R_world_camera[free]
-        self._t_est[kf_free] = state.poses.t_world_camera[free]
-        P, Lm = self._points, self._lines
-        if len(win.points):
-            p = problem.point_positions(state)
-            good = np.all(np.isfinite(p), axis=1)
-            P.p_world[win.points[good]] = p[good]
-        if len(win.lines) and self._variant.with_lines:
-            m, v = problem.line_pluecker(state)
-            norm = np.linalg.norm(v, axis=1, keepdims=True)
-            good = np.all(np.isfinite(m), axis=1) & (norm[:, 0] > 1e-12)
-            Lm.m[win.lines[good]], Lm.v[win.lines[good]] = m[good] / norm[good], v[good] / norm[good]
-        used = problem.layout.plane_col >= 0
-        for j, q in enumerate(win.planes):
-            if used[j]:
-                self._planes.n[q], self._planes.d[q] = state.plane_n[j].copy(), float(state.plane_d[j])
-        self._refit_unused_planes({int(q) for q, u in zip(win.planes, used) if u})
+        write_back(self.map, win, problem, state, self._variant)
         self._after_solve(win, problem, state)
         timing["update"] = 1e3 * (time.perf_counter() - t0)
         hessian = None
@@ -940,13 +728,6 @@ class StereoEngine:
         )
         return report, hessian
 
-    def _refit_unused_planes(self, optimized: set[int]) -> None:
-        """Planes the variant does not optimize follow their landmarks (least squares)."""
-        for q in range(len(self._planes)):
-            fit = None if q in optimized else coplanar.refit_plane(self._planes.n[q], self._plane_support(q))
-            if fit is not None:
-                self._planes.n[q], self._planes.d[q] = fit
-
     def _cull(self, k: int) -> None:
         """Drop window observations whose error stays above `outlier_px` after the solve;
         remove landmarks whose anchor view is such an outlier, that lie behind their anchor
@@ -954,13 +735,13 @@ class StereoEngine:
         too few keyframes re-observed."""
         s = self.settings
         cam = self.camera
-        P, Lm = self._points, self._lines
+        P, Lm = self.map.points, self.map.lines
         w0, _ = self._window_range(k)
         bad_p = np.zeros(len(P), bool)
         bad_l = np.zeros(len(Lm), bool)
         for j in range(w0, k + 1):
-            o = self._obs[j]
-            R, t = self._R_est[j], self._t_est[j]
+            o = self.map.observations[j]
+            R, t = self.map.R_world_keyframe[j], self.map.t_world_keyframe[j]
             err = _pixel_errors(cam, R, t, P.p_world[o.point_id], o.point_uv)
             keep_p = (err < s.outlier_px) & P.ok[o.point_id]
             anchor_p = P.anchor[o.point_id] == j
@@ -973,23 +754,23 @@ class StereoEngine:
             P.n_kf[dropped_p] = P.n_kf[dropped_p] - 1
             dropped_l = o.line_id[~keep_l & ~anchor_l]
             Lm.n_kf[dropped_l] = Lm.n_kf[dropped_l] - 1
-            self._obs[j] = _KeyframeObs(o.point_id[keep_p | anchor_p], o.point_uv[keep_p | anchor_p], o.point_ur[keep_p | anchor_p], o.line_id[keep_l | anchor_l], o.line_uv[keep_l | anchor_l], o.line_ruv[keep_l | anchor_l])
+            self.map.observations[j] = KeyframeObservations(o.point_id[keep_p | anchor_p], o.point_uv[keep_p | anchor_p], o.point_ur[keep_p | anchor_p], o.line_id[keep_l | anchor_l], o.line_uv[keep_l | anchor_l], o.line_ruv[keep_l | anchor_l])
         # Depth in the anchor and re-observation.
         ids = np.flatnonzero(P.ok[:])
         a = P.anchor[ids]
-        z = np.einsum("nji,nj->ni", self._R_est[a], P.p_world[ids] - self._t_est[a])[:, 2]
+        z = np.einsum("nji,nj->ni", self.map.R_world_keyframe[a], P.p_world[ids] - self.map.t_world_keyframe[a])[:, 2]
         bad_p[ids[~((z > 0.5 * s.min_depth_m) & (z < 2.0 * s.max_depth_m))]] = True
-        stale = (P.born[ids] <= k - s.cull_after_keyframes) & (a >= self._segment_start) & (P.n_kf[ids] < s.min_keyframe_observations)
+        stale = (P.born[ids] <= k - s.cull_after_keyframes) & (a >= self.map.segment_start) & (P.n_kf[ids] < s.min_keyframe_observations)
         bad_p[ids[stale]] = True
         ids_l = np.flatnonzero(Lm.ok[:])
         # Lines as points: their nearest point to the anchor camera within the depth range
         # (a solve can push a line weakly seen to infinity, where its coordinates overflow).
         a_l = Lm.anchor[ids_l]
         with np.errstate(over="ignore", invalid="ignore"):
-            m_c, v_c = line_geo.to_camera(Lm.m[ids_l], Lm.v[ids_l], self._R_est[a_l], self._t_est[a_l])
+            m_c, v_c = line_geo.to_camera(Lm.m[ids_l], Lm.v[ids_l], self.map.R_world_keyframe[a_l], self.map.t_world_keyframe[a_l])
             reach = np.linalg.norm(line_geo.closest_point_to_origin(m_c, v_c), axis=1)
         bad_l[ids_l[~(reach < 2.0 * s.max_depth_m)]] = True
-        stale_l = (Lm.born[ids_l] <= k - s.cull_after_keyframes) & (Lm.anchor[ids_l] >= self._segment_start) & (Lm.n_kf[ids_l] < s.min_keyframe_observations)
+        stale_l = (Lm.born[ids_l] <= k - s.cull_after_keyframes) & (Lm.anchor[ids_l] >= self.map.segment_start) & (Lm.n_kf[ids_l] < s.min_keyframe_observations)
         bad_l[ids_l[stale_l]] = True
         P.ok[np.flatnonzero(bad_p)] = False
         Lm.ok[np.flatnonzero(bad_l)] = False
@@ -999,21 +780,21 @@ class StereoEngine:
         those that project into the image, so revisited places are re-associated); the
         window's own landmarks first."""
         w0, _ = self._window_range(k)
-        win = [self._obs[j] for j in range(w0, k + 1)]
+        win = [self.map.observations[j] for j in range(w0, k + 1)]
         pts = np.unique(np.concatenate([o.point_id for o in win]))
         lns = np.unique(np.concatenate([o.line_id for o in win]))
-        P, Lm = self._points, self._lines
-        older_p = np.flatnonzero(P.ok[:] & (P.anchor[:] >= self._segment_start))
-        older_l = np.flatnonzero(Lm.ok[:] & (Lm.anchor[:] >= self._segment_start))
+        P, Lm = self.map.points, self.map.lines
+        older_p = np.flatnonzero(P.ok[:] & (P.anchor[:] >= self.map.segment_start))
+        older_l = np.flatnonzero(Lm.ok[:] & (Lm.anchor[:] >= self.map.segment_start))
         self._local_points = np.concatenate([pts[P.ok[pts]], np.setdiff1d(older_p, pts)])
         self._local_lines = np.concatenate([lns[Lm.ok[lns]], np.setdiff1d(older_l, lns)])
 
     # ------------------------------------------------------------------ snapshot
 
-    def _draw(self, left: np.ndarray, kp: Keypoints, status: np.ndarray, segs: StereoSegments | None, obs: _KeyframeObs, masks: PlaneMasks | None, detection: Detection) -> KeyframeImage:
+    def _draw(self, left: np.ndarray, kp: Keypoints, status: np.ndarray, segs: StereoSegments | None, obs: KeyframeObservations, masks: PlaneMasks | None, detection: Detection) -> KeyframeImage:
         if segs is not None and len(self._line_seg_index):
             seg_uv = obs.line_uv.reshape(-1, 2, 2)
-            seg_plane = np.where(self._lines.ok[obs.line_id], self._lines.plane[obs.line_id], -1)
+            seg_plane = np.where(self.map.lines.ok[obs.line_id], self.map.lines.plane[obs.line_id], -1)
         else:
             seg_uv, seg_plane = np.zeros((0, 2, 2)), np.zeros(0, np.int64)
         instance_plane = self._instance_plane if masks is not None and len(self._instance_plane) == masks.count else None
@@ -1026,11 +807,11 @@ class StereoEngine:
         w0, _ = self._window_range(k)
         n = k + 1
         estimate = Trajectory((
-            (self._stamp.prefix(w0), self._R_est.prefix(w0), self._t_est.prefix(w0)),
-            (frozen(self._stamp[w0:n].copy()), frozen(self._R_est[w0:n].copy()), frozen(self._t_est[w0:n].copy())),
+            (self.map.keyframe_stamp_ns.prefix(w0), self.map.R_world_keyframe.prefix(w0), self.map.t_world_keyframe.prefix(w0)),
+            (frozen(self.map.keyframe_stamp_ns[w0:n].copy()), frozen(self.map.R_world_keyframe[w0:n].copy()), frozen(self.map.t_world_keyframe[w0:n].copy())),
         ))
-        gt = Trajectory.of(self._stamp.prefix(n), self._R_gt.prefix(n), self._t_gt.prefix(n))
-        P, Lm = self._points, self._lines
+        gt = Trajectory.of(self.map.keyframe_stamp_ns.prefix(n), self.map.R_world_keyframe_true.prefix(n), self.map.t_world_keyframe_true.prefix(n))
+        P, Lm = self.map.points, self.map.lines
         p_ids = np.flatnonzero(P.ok[:])
         p_det = np.zeros(len(P), np.uint8)
         p_det[det_state[0]] = det_state[1]
@@ -1038,22 +819,22 @@ class StereoEngine:
         l_det = np.zeros(len(Lm), np.uint8)
         l_det[det_state[2]] = det_state[3]
         points = PointLandmarks(frozen(p_ids), frozen(P.p_world[p_ids].copy()), frozen(P.plane[p_ids].copy()), frozen(P.anchor[p_ids].copy()), frozen(p_det[p_ids]))
-        lines = LineLandmarks(frozen(l_ids), frozen(self._segments_world(l_ids)), frozen(Lm.plane[l_ids].copy()), frozen(Lm.anchor[l_ids].copy()), frozen(l_det[l_ids]))
+        lines = LineLandmarks(frozen(l_ids), frozen(self.map.segments_world(l_ids)), frozen(Lm.plane[l_ids].copy()), frozen(Lm.anchor[l_ids].copy()), frozen(l_det[l_ids]))
         planes = []
-        for q in range(len(self._planes)):
+        for q in range(len(self.map.planes)):
             n_p, n_l = int(np.sum((P.plane[:] == q) & P.ok[:])), int(np.sum((Lm.plane[:] == q) & Lm.ok[:]))
             if n_p + n_l == 0:
                 continue
             planes.append(PlaneLandmark(
-                id=q, n=frozen(np.array(self._planes.n[q])), d=float(self._planes.d[q]), hull_world=frozen(self._hull(q)), n_points=n_p, n_lines=n_l,
-                last_consensus=self._planes.consensus[q][0], last_candidates=self._planes.consensus[q][1],
+                id=q, n=frozen(np.array(self.map.planes.n[q])), d=float(self.map.planes.d[q]), hull_world=frozen(self.map.hull(q)), n_points=n_p, n_lines=n_l,
+                last_consensus=self.map.planes.consensus[q][0], last_candidates=self.map.planes.consensus[q][1],
             ))
         valid = np.isfinite(gt.t_world_camera[:, 0])
         t_est, t_gt = estimate.t_world_camera[valid], gt.t_world_camera[valid]
         rmse = 100.0 * translational_rmse(t_est, t_gt) if len(t_gt) else float("nan")
         ate = 100.0 * ate_rmse(t_est, t_gt, align="se3") if len(t_gt) >= 3 else rmse
         return Snapshot(
-            keyframe=k, timestamp_ns=int(self._stamp[k]), source=self._name, camera=self.camera, estimate=estimate, ground_truth=gt if valid.any() else None,
+            keyframe=k, timestamp_ns=int(self.map.keyframe_stamp_ns[k]), source=self._name, camera=self.camera, estimate=estimate, ground_truth=gt if valid.any() else None,
             window=frozen(np.arange(w0, n)), points=points, lines=lines, planes=tuple(planes), detection=detection,
             report=report, hessian=hessian, metrics=Metrics(rmse_cm=rmse, ate_cm=ate), message=message, image=image, tracking=tracking,
         )

@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -67,6 +68,8 @@ from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, PreparedImuFactor, im
 from backend.mapping.triangulation import triangulate_lines, triangulate_two_views
 from backend.optim import inertial
 from backend.optim.marginalization import marginalize, remap
+from backend.mapping.map import KeyframeObservations
+from backend.mapping.window import Window
 from backend.optim.problem import DistancePrior, ProblemData
 from backend.pipeline.engine import checkpoint_of
 from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
@@ -77,9 +80,7 @@ from backend.pipeline.stereo_engine import (
     POINT_UNUSED,
     StereoEngine,
     StereoSettings,
-    _KeyframeObs,
     _Tracked,
-    _Window,
 )
 from backend.pipeline.tracking import merge_matches, pnp_ransac
 from backend.vio.alignment import Alignment, AlignmentSettings, align_visual_inertial
@@ -212,7 +213,7 @@ class VioEngine(StereoEngine):
             self._last_frame_ns = t_ns
             if self._flow_tracks_on():
                 kp = self._follow_tracks(left, kp)
-            if self.keyframes == self._segment_start:
+            if self.keyframes == self.map.segment_start:
                 R, t = self._initial_pose(i)
                 tracked, reason = _Tracked(R, t, np.full(0, -1, np.int64), 0, True), "first frame"
             elif self._bootstrapping:
@@ -224,7 +225,7 @@ class VioEngine(StereoEngine):
                     # Nothing left to follow from the first keyframe: this frame starts again.
                     self._restart_flow = False
                     self._start_segment()
-                    R, t = self._R_est[-1], self._t_est[-1]
+                    R, t = self.map.R_world_keyframe[-1], self.map.t_world_keyframe[-1]
                     tracked, reason = _Tracked(R.copy(), t.copy(), np.full(0, -1, np.int64), 0, True), "first frame"
                     break
                 tracked, reason, kp = bootstrap[0], "initial pair", bootstrap[4]
@@ -260,7 +261,7 @@ class VioEngine(StereoEngine):
                 self._mflow = (self._local_points[m], kp.uv[tracked.match[m]])
             if reason:
                 break
-            self._record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
+            self.map.record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
         return self._vio_keyframe(i, left, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, reason=reason, bootstrap=bootstrap)
 
     # ------------------------------------------------------------------ start
@@ -268,7 +269,7 @@ class VioEngine(StereoEngine):
     def _start_segment(self) -> None:
         """A new map segment from the next keyframe: structure from motion and
         initialization again (the old map stays, frozen)."""
-        self._segment_start = self.keyframes
+        self.map.segment_start = self.keyframes
         self._local_points = np.zeros(0, np.int64)
         self._local_lines = np.zeros(0, np.int64)
         self._initialized = False
@@ -288,7 +289,7 @@ class VioEngine(StereoEngine):
         keypoint indices in frame i, p_world) or None."""
         s = self.settings
         cam = self.camera
-        k0 = self._segment_start
+        k0 = self.map.segment_start
         ids, uv_prev, image_prev = self._flow
         if len(ids) >= 8:
             uv, ok = follow(image_prev, image, uv_prev, cam, R_prev_cur=self._R_flow)
@@ -300,7 +301,7 @@ class VioEngine(StereoEngine):
             return None
         kp0 = self._kf_features[k0][0]
         uv0, uv1 = kp0.uv[ids], uv_prev
-        R_01_imu = self._gyro_rotation(int(self._stamp[k0]), int(self.data_source.timestamps_ns[i]))
+        R_01_imu = self._gyro_rotation(int(self.map.keyframe_stamp_ns[k0]), int(self.data_source.timestamps_ns[i]))
         x0 = cam.normalize(uv0) @ R_01_imu  # the first view's rays rotated into frame i
         with np.errstate(divide="ignore", invalid="ignore"):
             parallax = np.linalg.norm(cam.project(x0) - uv1, axis=1)
@@ -318,11 +319,11 @@ class VioEngine(StereoEngine):
         # of one depth, has none, and its essential matrix gets the translation wrong.
         if rotation_free_parallax_px(cam, uv0[inl], uv1[inl]) < s.init_rotation_free_parallax_px:
             return None
-        R_w0, t_w0 = self._R_est[k0], self._t_est[k0]
+        R_w0, t_w0 = self.map.R_world_keyframe[k0], self.map.t_world_keyframe[k0]
         R_01 = R_10.T  # camera 1 in camera 0
         # A rotation the gyroscope contradicts is a wrong decomposition (too little translation
         # for the essential matrix to separate it from the rotation): wait for more parallax.
-        dt_s = (int(self.data_source.timestamps_ns[i]) - int(self._stamp[k0])) * 1e-9
+        dt_s = (int(self.data_source.timestamps_ns[i]) - int(self.map.keyframe_stamp_ns[k0])) * 1e-9
         tolerance_rad = np.radians(s.init_gyro_agreement_deg) + s.init_gyro_bias_bound_rad_s * dt_s
         if np.linalg.norm(so3.log(R_01.T @ R_01_imu)) > tolerance_rad:
             return None
@@ -394,9 +395,9 @@ class VioEngine(StereoEngine):
     def _imu_predict(self, k: int, t_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Camera pose and body velocity at `t_ns` from keyframe k's state and the IMU."""
         R_bc, t_bc = self.T_body_camera[:3, :3], self.T_body_camera[:3, 3]
-        R_wb, t_wb, _ = inertial.body_poses(self._R_est[k][None], self._t_est[k][None], self.T_body_camera)
+        R_wb, t_wb, _ = inertial.body_poses(self.map.R_world_keyframe[k][None], self.map.t_world_keyframe[k][None], self.T_body_camera)
         bias = self._bias[k]
-        pim = preintegrate(self.imu, int(self._stamp[k]), int(t_ns), bias_accel=bias[:3], bias_gyro=bias[3:], params=self.imu_params)
+        pim = preintegrate(self.imu, int(self.map.keyframe_stamp_ns[k]), int(t_ns), bias_accel=bias[:3], bias_gyro=bias[3:], params=self.imu_params)
         R_wb1, t_wb1, v1 = predict_state(pim, R_wb[0], t_wb[0], self._vel[k], bias=bias)
         return R_wb1 @ R_bc, t_wb1 + R_wb1 @ t_bc, v1
 
@@ -406,20 +407,20 @@ class VioEngine(StereoEngine):
             return ""
         k = self.keyframes - 1
         interval = s.max_keyframe_interval_s if self._initialized else s.init_max_keyframe_interval_s
-        if (int(self.data_source.timestamps_ns[i]) - int(self._stamp[k])) * 1e-9 >= interval:
+        if (int(self.data_source.timestamps_ns[i]) - int(self.map.keyframe_stamp_ns[k])) * 1e-9 >= interval:
             return "IMU interval"
         if tracked.inliers < s.min_tracked_points:
             return "few tracked"
         if tracked.inliers < s.fallback_tracked_ratio * self._last_kf_tracked:
             return "fallback"
         # Rotation-compensated parallax of the tracked points against the last keyframe.
-        o = self._obs[k]
+        o = self.map.observations[k]
         ids = self._local_points[tracked.match >= 0]
         uv_now = kp.uv[tracked.match[tracked.match >= 0]]
         _, a, b = np.intersect1d(o.point_id, ids, assume_unique=True, return_indices=True)  # a point is observed once per keyframe
         if len(a) == 0:
             return "few tracked"
-        R_rel = tracked.R.T @ self._R_est[k]  # keyframe camera -> frame camera
+        R_rel = tracked.R.T @ self.map.R_world_keyframe[k]  # keyframe camera -> frame camera
         x = self.camera.normalize(o.point_uv[a]) @ R_rel.T
         with np.errstate(divide="ignore", invalid="ignore"):
             parallax = np.linalg.norm(self.camera.project(x) - uv_now[b], axis=1)
@@ -457,7 +458,7 @@ class VioEngine(StereoEngine):
             status[tracked.match[tracked.match >= 0]] = POINT_OUTLIER
         self._add_keyframe(i, tracked.R, tracked.t)
         self._add_inertial_state(k)
-        if k == self._segment_start:  # the start follows this keyframe's features frame to frame
+        if k == self.map.segment_start:  # the start follows this keyframe's features frame to frame
             self._flow = (np.arange(len(kp.uv)), kp.uv.copy(), left)
         obs, new_points, new_lines = self._observe_mono(k, kp, local_p, p_match, segments, local_l, l_match, bootstrap)
         status[p_match[p_match >= 0]] = POINT_TRACKED
@@ -465,16 +466,16 @@ class VioEngine(StereoEngine):
         if s.flow_tracks and not self._initialized:
             self._seed_tracks(k, kp, left)
             self._mflow = (obs.point_id, obs.point_uv)
-        self._last_kf_tracked = int(np.count_nonzero(p_match >= 0)) if k > self._segment_start + 1 else len(obs.point_id)  # map points tracked (new ones are not yet)
+        self._last_kf_tracked = int(np.count_nonzero(p_match >= 0)) if k > self.map.segment_start + 1 else len(obs.point_id)  # map points tracked (new ones are not yet)
         timing["mapping"] = 1e3 * (time.perf_counter() - t0)
 
         # Monocular: the segmenter sees the left image only.
-        images = (left, left) if use_planes and k > self._segment_start else None
+        images = (left, left) if use_planes and k > self.map.segment_start else None
         masks, detection, report, hessian = self._detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=images)
         if not self._initialized:
             self._try_initialize(k)
         if self._frame_poses:
-            self._frame_poses[-1] = (i, self._R_est[k].copy(), self._t_est[k].copy())
+            self._frame_poses[-1] = (i, self.map.R_world_keyframe[k].copy(), self.map.t_world_keyframe[k].copy())
 
         image = None
         if s.image_scale is not None:
@@ -492,24 +493,24 @@ class VioEngine(StereoEngine):
     def _add_inertial_state(self, k: int) -> None:
         """Velocity and biases of the new keyframe (IMU prediction after the initialization)
         and the preintegration from the previous keyframe."""
-        if k == self._segment_start or not self._initialized:
+        if k == self.map.segment_start or not self._initialized:
             self._vel.append(np.zeros(3))
             self._bias.append(self._bias[-1].copy() if self._bias else np.zeros(6))
         else:
-            _, _, v = self._imu_predict(k - 1, int(self._stamp[k]))
+            _, _, v = self._imu_predict(k - 1, int(self.map.keyframe_stamp_ns[k]))
             self._vel.append(v)
             self._bias.append(self._bias[k - 1].copy())
-        if k > self._segment_start:
+        if k > self.map.segment_start:
             self._imu_factors[k - 1] = self._preintegrate(k - 1)
 
     def _preintegrate(self, k: int) -> PreparedImuFactor:
         b = self._bias[k]
-        return imu_factor(preintegrate(self.imu, int(self._stamp[k]), int(self._stamp[k + 1]), bias_accel=b[:3], bias_gyro=b[3:], params=self.imu_params))
+        return imu_factor(preintegrate(self.imu, int(self.map.keyframe_stamp_ns[k]), int(self.map.keyframe_stamp_ns[k + 1]), bias_accel=b[:3], bias_gyro=b[3:], params=self.imu_params))
 
-    def _observe_mono(self, k: int, kp: Keypoints, local_p: np.ndarray, p_match: np.ndarray, segments: Segments | None, local_l: np.ndarray, l_match: np.ndarray, bootstrap) -> tuple[_KeyframeObs, np.ndarray, np.ndarray]:  # noqa: ANN001
+    def _observe_mono(self, k: int, kp: Keypoints, local_p: np.ndarray, p_match: np.ndarray, segments: Segments | None, local_l: np.ndarray, l_match: np.ndarray, bootstrap) -> tuple[KeyframeObservations, np.ndarray, np.ndarray]:  # noqa: ANN001
         """Keyframe k's observations of map landmarks, and new landmarks triangulated with
         the previous keyframe (or the initial pair's points)."""
-        P, Lm = self._points, self._lines
+        P, Lm = self.map.points, self.map.lines
         mp = np.flatnonzero(p_match >= 0)
         j = p_match[mp]
         tracked_ids = local_p[mp]
@@ -523,7 +524,7 @@ class VioEngine(StereoEngine):
             self._bootstrapping = False
             _, idx0, idx1, p_w, _ = bootstrap
             new_points, fresh = self._add_points(k, k - 1, self._kf_features[k - 1][0], idx0, kp, idx1, p_w)
-        elif k > self._segment_start:
+        elif k > self.map.segment_start:
             # With the previous keyframes, newest first: a feature too close to its match in
             # k - 1 (parallax) may be far enough from it in an older one.
             found_ids, found_kp = [], []
@@ -532,7 +533,7 @@ class VioEngine(StereoEngine):
                 claimed[fr] = True
                 found_ids.append(ids)
                 found_kp.append(fr)
-            for older in range(k - 1, max(self._segment_start, k - 1 - self.settings.triangulation_keyframes) - 1, -1):
+            for older in range(k - 1, max(self.map.segment_start, k - 1 - self.settings.triangulation_keyframes) - 1, -1):
                 if older not in self._kf_features:
                     break
                 kp_prev, claimed_prev = self._kf_features[older]
@@ -562,7 +563,7 @@ class VioEngine(StereoEngine):
             claimed_l = np.zeros(len(segments), bool)
             claimed_l[jl] = True
             fresh_l = np.zeros(0, np.int64)
-            if k - 1 in self._kf_segments and k > self._segment_start:
+            if k - 1 in self._kf_segments and k > self.map.segment_start:
                 prev, claimed_prev_l = self._kf_segments[k - 1]
                 new_lines, fresh_l = self._new_lines(k, prev, claimed_prev_l, segments, claimed_l)
             claimed_l[fresh_l] = True
@@ -570,8 +571,8 @@ class VioEngine(StereoEngine):
             self._kf_segments.pop(k - 2, None)
             line_id = np.concatenate([tracked_l, new_lines])
             line_uv = uv[np.concatenate([jl, fresh_l])]
-        obs = _KeyframeObs(point_id, kp.uv[point_kp], np.full(len(point_id), np.nan), line_id, line_uv, np.full((len(line_id), 4), np.nan))
-        self._obs[k] = obs
+        obs = KeyframeObservations(point_id, kp.uv[point_kp], np.full(len(point_id), np.nan), line_id, line_uv, np.full((len(line_id), 4), np.nan))
+        self.map.observations[k] = obs
         return obs, new_points, new_lines
 
     def _triangulate_new_points(self, j: int, k: int, kp0: Keypoints, cand0: np.ndarray, kp1: Keypoints, cand1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -583,7 +584,7 @@ class VioEngine(StereoEngine):
         empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
         if len(cand0) == 0 or len(cand1) == 0:
             return empty
-        R0, t0, R1, t1 = self._R_est[j], self._t_est[j], self._R_est[k], self._t_est[k]
+        R0, t0, R1, t1 = self.map.R_world_keyframe[j], self.map.t_world_keyframe[j], self.map.R_world_keyframe[k], self.map.t_world_keyframe[k]
         R_10 = R1.T @ R0
         t_10 = R1.T @ (t0 - t1)
         if np.linalg.norm(t_10) < 1e-6:
@@ -611,7 +612,7 @@ class VioEngine(StereoEngine):
         reprojection errors under `outlier_px`."""
         s = self.settings
         cam = self.camera
-        R0, t0, R1, t1 = self._R_est[j], self._t_est[j], self._R_est[k], self._t_est[k]
+        R0, t0, R1, t1 = self.map.R_world_keyframe[j], self.map.t_world_keyframe[j], self.map.R_world_keyframe[k], self.map.t_world_keyframe[k]
         if len(uv0) == 0:
             return np.zeros((0, 3)), np.zeros(0, bool)
         p_w = triangulate_two_views(cam.normalize(uv0)[:, :2], cam.normalize(uv1)[:, :2], R0, t0, R1, t1)
@@ -632,7 +633,7 @@ class VioEngine(StereoEngine):
     def _flow_tracks_on(self) -> bool:
         """Whether candidate features are followed frame to frame: from the segment's first
         map until the initialization."""
-        return self.settings.flow_tracks and not self._initialized and not self._bootstrapping and self.keyframes > self._segment_start
+        return self.settings.flow_tracks and not self._initialized and not self._bootstrapping and self.keyframes > self.map.segment_start
 
     def _follow_tracks(self, image: np.ndarray, kp: Keypoints) -> Keypoints:
         """The map points seen in the last frame and the candidate features followed into
@@ -663,7 +664,7 @@ class VioEngine(StereoEngine):
         match = np.full(len(local), -1, np.int64)
         _, at_local, at_flow = np.intersect1d(local, ids, assume_unique=True, return_indices=True)
         match[at_local] = self._mflow_kp[at_flow]
-        P = self._points.p_world[local]
+        P = self.map.points.p_world[local]
         m = np.flatnonzero(match >= 0)
         need = self.settings.flow_min_tracking_inliers
         pose = pnp_ransac(self.camera, P[m], kp.uv[match[m]], min_inliers=need, seed=self.settings.seed + i)
@@ -672,7 +673,7 @@ class VioEngine(StereoEngine):
         match[m[~pose[2]]] = -1
         if result.ok and len(result.match) == len(local):
             match = merge_matches(match, result.match, n_keypoints=len(kp.uv))
-        flowed = self._refine(pose[0], pose[1], P, self._points.desc[local], kp, match, min_inliers=need, keep_matches=True)
+        flowed = self._refine(pose[0], pose[1], P, self.map.points.desc[local], kp, match, min_inliers=need, keep_matches=True)
         return flowed if flowed.ok and flowed.inliers >= result.inliers else result
 
     def _triangulate_tracks(self, k: int, kp: Keypoints, claimed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -733,12 +734,12 @@ class VioEngine(StereoEngine):
         and observed in both; their re-observations are counted from keyframe k - 1 (as for a
         pair with the previous keyframe, whatever k0). Returns their ids."""
         n = len(uv0)
-        ids = self._points.add(
+        ids = self.map.points.add(
             p_world=p_world, ok=np.ones(n, bool), anchor=np.full(n, k0), anchor_uv=uv0, anchor_ur=np.full(n, np.nan),
             plane=np.full(n, -1), desc=desc, n_kf=np.full(n, 2, np.int64), born=np.full(n, k - 1),
         )
-        o = self._obs[k0]
-        self._obs[k0] = _KeyframeObs(np.concatenate([o.point_id, ids]), np.concatenate([o.point_uv, uv0]), np.concatenate([o.point_ur, np.full(n, np.nan)]), o.line_id, o.line_uv, o.line_ruv)
+        o = self.map.observations[k0]
+        self.map.observations[k0] = KeyframeObservations(np.concatenate([o.point_id, ids]), np.concatenate([o.point_uv, uv0]), np.concatenate([o.point_ur, np.full(n, np.nan)]), o.line_id, o.line_uv, o.line_ruv)
         return ids
 
     def _new_lines(self, k: int, prev: Segments, claimed_prev: np.ndarray, cur: Segments, claimed_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -747,7 +748,7 @@ class VioEngine(StereoEngine):
         apart), with both endpoints in front of both cameras."""
         s = self.settings
         cam = self.camera
-        Lm = self._lines
+        Lm = self.map.lines
         a = np.flatnonzero(~claimed_prev)
         b = np.flatnonzero(~claimed_cur)
         empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
@@ -764,8 +765,8 @@ class VioEngine(StereoEngine):
         xe = np.concatenate([cam.normalize(prev.end[ia]), cam.normalize(cur.end[ib])])
         landmark = np.concatenate([np.arange(n), np.arange(n)])
         pose = np.concatenate([np.zeros(n, np.int64), np.ones(n, np.int64)])
-        Rs = np.stack([self._R_est[k - 1], self._R_est[k]])
-        ts = np.stack([self._t_est[k - 1], self._t_est[k]])
+        Rs = np.stack([self.map.R_world_keyframe[k - 1], self.map.R_world_keyframe[k]])
+        ts = np.stack([self.map.t_world_keyframe[k - 1], self.map.t_world_keyframe[k]])
         m, v, spread = triangulate_lines(xs, xe, landmark, pose, n, Rs, ts)
         norm = np.linalg.norm(v, axis=1)
         good = (spread > np.sin(np.radians(s.min_parallax_deg))) & (norm > 1e-12)
@@ -793,8 +794,8 @@ class VioEngine(StereoEngine):
             m=m[sel], v=v[sel], ok=np.ones(len(sel), bool), anchor=np.full(len(sel), k - 1), anchor_uv=uv_prev, anchor_ruv=np.full((len(sel), 4), np.nan),
             plane=np.full(len(sel), -1), desc=cur.descriptors[ib[sel]], n_kf=np.full(len(sel), 2, np.int64),
         )
-        o = self._obs[k - 1]
-        self._obs[k - 1] = _KeyframeObs(o.point_id, o.point_uv, o.point_ur, np.concatenate([o.line_id, ids]), np.concatenate([o.line_uv, uv_prev]), np.concatenate([o.line_ruv, np.full((len(ids), 4), np.nan)]))
+        o = self.map.observations[k - 1]
+        self.map.observations[k - 1] = KeyframeObservations(o.point_id, o.point_uv, o.point_ur, np.concatenate([o.line_id, ids]), np.concatenate([o.line_uv, uv_prev]), np.concatenate([o.line_ruv, np.full((len(ids), 4), np.nan)]))
         claimed_prev[ia[sel]] = True
         return ids, ib[sel]
 
@@ -803,17 +804,17 @@ class VioEngine(StereoEngine):
     def _try_initialize(self, k: int) -> None:
         """Visual-inertial alignment over the segment's keyframes so far (module docstring)."""
         s = self.settings
-        first = max(self._segment_start, k + 1 - 2 * s.window)
+        first = max(self.map.segment_start, k + 1 - 2 * s.window)
         kfs = np.arange(first, k + 1)
         n_kf = len(kfs)
-        span = (int(self._stamp[k]) - int(self._stamp[first])) * 1e-9
+        span = (int(self.map.keyframe_stamp_ns[k]) - int(self.map.keyframe_stamp_ns[first])) * 1e-9
         if n_kf < s.init_keyframes or span < s.init_min_span_s:
             self._init_status = f"structure from motion: {n_kf} keyframes over {span:.1f} s (alignment after {s.init_keyframes} keyframes over {s.init_min_span_s:.1f} s)"
             return
-        R_v, t_v = self._R_est[kfs], self._t_est[kfs]
+        R_v, t_v = self.map.R_world_keyframe[kfs], self.map.t_world_keyframe[kfs]
         R_c0 = np.einsum("ji,njk->nik", R_v[0], R_v)
         p_c0 = np.einsum("ji,nj->ni", R_v[0], t_v - t_v[0])
-        result: Alignment = align_visual_inertial(self._stamp[kfs], R_c0, p_c0, self.imu, T_body_cam0=self.T_body_camera, noise=self.imu_noise, settings=s.alignment)
+        result: Alignment = align_visual_inertial(self.map.keyframe_stamp_ns[kfs], R_c0, p_c0, self.imu, T_body_cam0=self.T_body_camera, noise=self.imu_noise, settings=s.alignment)
         self._init_report = {"keyframes": n_kf, "span_s": span, **result.to_dict()}
         if not result.success:
             self._init_status = f"alignment rejected at keyframe {k} ({n_kf} keyframes, {span:.1f} s): {result.reason}; retrying"
@@ -834,12 +835,12 @@ class VioEngine(StereoEngine):
         the gyro bias from the alignment; the gauge prior on the window's first keyframe."""
         s = self.settings
         k0 = int(kfs[0])
-        R_v0, t_v0 = self._R_est[k0].copy(), self._t_est[k0].copy()
+        R_v0, t_v0 = self.map.R_world_keyframe[k0].copy(), self.map.t_world_keyframe[k0].copy()
         R_w_c0 = result.R_world_c0
         # Yaw and position of the first aligned keyframe from the ground truth where known
         # (the gauge: unobservable, chosen so that estimate and truth are drawn together).
         t_w_c0 = np.zeros(3)
-        i0 = int(self._kf_frame[k0])
+        i0 = int(self.map.keyframe_frame[k0])
         if bool(self.data_source.ground_truth_valid[i0]):
             T = self.data_source.T_world_rect0[i0]
             R_gt = T[:3, :3]
@@ -857,13 +858,13 @@ class VioEngine(StereoEngine):
             return scale * ((p_v - t_v0) @ R_v0) @ R_w_c0.T + t_w_c0
 
         R_wv = R_w_c0 @ R_v0.T
-        seg = np.arange(self._segment_start, self.keyframes)
-        self._R_est[seg] = np.einsum("ij,njk->nik", R_wv, self._R_est[seg])
-        self._t_est[seg] = to_world(self._t_est[seg])
-        P, Lm = self._points, self._lines
-        pts = np.flatnonzero(P.anchor[:] >= self._segment_start)
+        seg = np.arange(self.map.segment_start, self.keyframes)
+        self.map.R_world_keyframe[seg] = np.einsum("ij,njk->nik", R_wv, self.map.R_world_keyframe[seg])
+        self.map.t_world_keyframe[seg] = to_world(self.map.t_world_keyframe[seg])
+        P, Lm = self.map.points, self.map.lines
+        pts = np.flatnonzero(P.anchor[:] >= self.map.segment_start)
         P.p_world[pts] = to_world(P.p_world[pts])
-        lns = np.flatnonzero(Lm.anchor[:] >= self._segment_start)
+        lns = np.flatnonzero(Lm.anchor[:] >= self.map.segment_start)
         if len(lns):
             m_v, v_v = Lm.m[lns], Lm.v[lns]
             p0 = np.cross(v_v, m_v)  # the line's point nearest the visual origin (|v| = 1)
@@ -873,20 +874,20 @@ class VioEngine(StereoEngine):
             Lm.m[lns], Lm.v[lns] = m / norm, v / norm
         used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[lns]]))
         for q in used_planes[used_planes >= 0]:
-            n_v, d_v = self._planes.n[q], self._planes.d[q]
+            n_v, d_v = self.map.planes.n[q], self.map.planes.d[q]
             n_w = R_wv @ n_v
             x_v = -d_v * n_v  # a point of the plane
-            self._planes.n[q], self._planes.d[q] = n_w, float(-n_w @ to_world(x_v[None])[0])
+            self.map.planes.n[q], self.map.planes.d[q] = n_w, float(-n_w @ to_world(x_v[None])[0])
         for j, kf in enumerate(kfs):
             self._vel[kf] = vel_world[j].copy()
             self._bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
-        for kf in range(self._segment_start, self.keyframes):
+        for kf in range(self.map.segment_start, self.keyframes):
             if kf not in set(kfs.tolist()):
                 self._bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
-        for kf in range(self._segment_start, self.keyframes - 1):
+        for kf in range(self.map.segment_start, self.keyframes - 1):
             self._imu_factors[kf] = self._preintegrate(kf)
         # Window: from here on the prior is the gauge; landmarks before the window are frozen.
-        w0 = max(self._segment_start, self.keyframes - s.window + 1)  # the next window's first keyframe
+        w0 = max(self.map.segment_start, self.keyframes - s.window + 1)  # the next window's first keyframe
         self._marginalized_before = w0
         self._prior = self._gauge_prior(w0)
 
@@ -894,7 +895,7 @@ class VioEngine(StereoEngine):
         """What the start knows about keyframe k: position and yaw (the gauge), roll and pitch
         from the aligned gravity, velocity and biases (VioSettings' σ)."""
         s = self.settings
-        R, t = self._R_est[k], self._t_est[k]
+        R, t = self.map.R_world_keyframe[k], self.map.t_world_keyframe[k]
         A = np.zeros((15, 15))
         A[:3, :3] = np.diag([1 / s.gauge_sigma_tilt_rad, 1 / s.gauge_sigma_tilt_rad, 1 / s.gauge_sigma_yaw_rad]) @ R  # world-axis rotation errors
         A[3:6, 3:6] = np.eye(3) / s.gauge_sigma_m
@@ -911,23 +912,23 @@ class VioEngine(StereoEngine):
         out: dict = {}
         src = self.data_source
         if isinstance(src, RenderedTruth):
-            stamps = self._stamp[kfs]
+            stamps = self.map.keyframe_stamp_ns[kfs]
             imu_t = src.imu.timestamp_ns
             at = np.clip(np.searchsorted(imu_t, stamps), 0, len(imu_t) - 1)
             b_true = np.mean(src.bias_gyro[at], axis=0)
             out["bias_gyro_true"] = b_true.tolist()
             out["bias_gyro_error"] = float(np.linalg.norm(result.bias_gyro - b_true))
             out["bias_gyro_error_pct"] = float(100.0 * np.linalg.norm(result.bias_gyro - b_true) / max(np.linalg.norm(b_true), 1e-12))
-        i0 = int(self._kf_frame[kfs[0]])
+        i0 = int(self.map.keyframe_frame[kfs[0]])
         if bool(src.ground_truth_valid[i0]):
             R_gt_c0 = src.T_world_rect0[i0][:3, :3]
             g_true_c0 = R_gt_c0.T @ np.array([0.0, 0.0, -9.81])
             g = result.gravity_c0
             out["gravity_error_deg"] = float(np.degrees(np.arccos(np.clip(g @ g_true_c0 / (np.linalg.norm(g) * 9.81), -1.0, 1.0))))
             # Scale: the visual baseline against the true one over the aligned keyframes.
-            t_gt = src.T_world_rect0[self._kf_frame[kfs]][:, :3, 3]
+            t_gt = src.T_world_rect0[self.map.keyframe_frame[kfs]][:, :3, 3]
             d_true = np.linalg.norm(t_gt[-1] - t_gt[0])
-            d_est = np.linalg.norm(self._t_est[kfs[-1]] - self._t_est[kfs[0]])
+            d_est = np.linalg.norm(self.map.t_world_keyframe[kfs[-1]] - self.map.t_world_keyframe[kfs[0]])
             out["scale_error_pct"] = float(100.0 * (d_est - d_true) / max(d_true, 1e-12))
         return out
 
@@ -935,35 +936,36 @@ class VioEngine(StereoEngine):
 
     def _window_range(self, k: int) -> tuple[int, int]:
         s = self.settings
-        w0 = max(self._segment_start, k - s.window + 1)
+        w0 = max(self.map.segment_start, k - s.window + 1)
         if self._initialized:
             w0 = max(w0, self._marginalized_before)
             return w0, w0
-        return w0, max(self._segment_start, w0 - s.fixed_horizon)
+        return w0, max(self.map.segment_start, w0 - s.fixed_horizon)
 
-    def _window_landmarks(self, pts: np.ndarray, lns: np.ndarray, w0: int) -> tuple[np.ndarray, np.ndarray]:
+    def _keep_landmarks(self, w0: int) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None:
         if not self._initialized:
-            return pts, lns
-        return pts[self._points.anchor[pts] >= w0], lns[self._lines.anchor[lns] >= w0]
+            return None
+        points, lines = self.map.points, self.map.lines
+        return lambda pts, lns: (pts[points.anchor[pts] >= w0], lns[lines.anchor[lns] >= w0])
 
-    def _window_planes(self, planes: np.ndarray) -> np.ndarray:
+    def _extra_window_planes(self) -> np.ndarray | None:
         if self._initialized and self._prior is not None and len(self._prior.plane_index):
-            return np.union1d(planes, self._prior.plane_index)
-        return planes
+            return self._prior.plane_index
+        return None
 
     def _fix_first_pose(self) -> bool:
         return not self._initialized
 
-    def _problem_data(self, win: _Window) -> ProblemData:
+    def _problem_data(self, win: Window) -> ProblemData:
         data = win.data
         kfs = win.kf
         if not self._initialized:
             # The monocular scale gauge before the IMU gives it: the distance of the segment's
             # first two keyframes, where both are in the window.
-            k0 = self._segment_start
+            k0 = self.map.segment_start
             if k0 in kfs and k0 + 1 in kfs:
                 i, j = np.searchsorted(kfs, [k0, k0 + 1])
-                dist = float(np.linalg.norm(self._t_est[k0 + 1] - self._t_est[k0]))
+                dist = float(np.linalg.norm(self.map.t_world_keyframe[k0 + 1] - self.map.t_world_keyframe[k0]))
                 data = dataclasses.replace(data, distance_prior=DistancePrior(np.array([i]), np.array([j]), np.array([dist]), 1e-4 * max(dist, 1e-6)))
             return data
         self._refresh_preintegrations(kfs)
@@ -974,10 +976,10 @@ class VioEngine(StereoEngine):
         imu_i = np.array([pose_map[a] for a, _ in pairs], np.int64)
         imu_j = np.array([pose_map[b] for _, b in pairs], np.int64)
         factors_ = tuple(self._imu_factors[a] for a, _ in pairs)
-        dt = np.array([(int(self._stamp[b]) - int(self._stamp[a])) * 1e-9 for a, b in pairs])
+        dt = np.array([(int(self.map.keyframe_stamp_ns[b]) - int(self.map.keyframe_stamp_ns[a])) * 1e-9 for a, b in pairs])
         prior = None
         if self._prior is not None:
-            plane_map = np.full(len(self._planes), -1)
+            plane_map = np.full(len(self.map.planes), -1)
             plane_map[win.planes] = np.arange(len(win.planes))
             prior = remap(self._prior, pose_map=pose_map, plane_map=plane_map)
         ine = inertial.InertialData(
@@ -999,7 +1001,7 @@ class VioEngine(StereoEngine):
             if np.max(np.abs(d[:3])) > s.rebias_accel or np.max(np.abs(d[3:])) > s.rebias_gyro:
                 self._imu_factors[int(a)] = self._preintegrate(int(a))
 
-    def _after_solve(self, win: _Window, problem, state) -> None:  # noqa: ANN001
+    def _after_solve(self, win: Window, problem, state) -> None:  # noqa: ANN001
         if not self._initialized or state.velocity is None:
             return
         free = ~win.data.fixed_poses
@@ -1010,8 +1012,8 @@ class VioEngine(StereoEngine):
         # Slide: when the window is full, marginalize its oldest keyframe and its landmarks.
         if len(win.kf) >= self.settings.window:
             oldest = int(win.kf[0])
-            p_local = np.flatnonzero(self._points.anchor[win.points] == oldest)
-            l_local = np.flatnonzero(self._lines.anchor[win.lines] == oldest)
+            p_local = np.flatnonzero(self.map.points.anchor[win.points] == oldest)
+            l_local = np.flatnonzero(self.map.lines.anchor[win.lines] == oldest)
             prior = marginalize(problem, state, poses=np.array([0]), points=p_local, lines=l_local)
             self._prior = None if prior is None else dataclasses.replace(prior, pose_index=win.kf[prior.pose_index], inertial_index=win.kf[prior.inertial_index], plane_index=win.planes[prior.plane_index])
             self._marginalized_before = oldest + 1
@@ -1028,9 +1030,9 @@ class VioEngine(StereoEngine):
         truth_v = truth_b = None
         src = self.data_source
         if isinstance(src, RenderedTruth):
-            t = self._stamp[: k + 1] * 1e-9
+            t = self.map.keyframe_stamp_ns[: k + 1] * 1e-9
             truth_v = src.trajectory.velocity(t)
-            at = np.clip(np.searchsorted(src.imu.timestamp_ns, self._stamp[: k + 1]), 0, len(src.imu.timestamp_ns) - 1)
+            at = np.clip(np.searchsorted(src.imu.timestamp_ns, self.map.keyframe_stamp_ns[: k + 1]), 0, len(src.imu.timestamp_ns) - 1)
             truth_b = np.concatenate([src.bias_accel[at], src.bias_gyro[at]], axis=1)
         return ImuState(
             initialized=self._initialized, status=self._init_status, init_keyframe=self._init_keyframe, report=dict(self._init_report),

@@ -243,12 +243,12 @@ def test_lines_out_of_range_or_not_finite_are_culled() -> None:
     _run(engine)
     k = engine.keyframes - 1
     w0, _ = engine._window_range(k)
-    Lm = engine._lines
-    in_window = np.unique(np.concatenate([engine._obs[j].line_id for j in range(w0, k + 1)]))
+    Lm = engine.map.lines
+    in_window = np.unique(np.concatenate([engine.map.observations[j].line_id for j in range(w0, k + 1)]))
     ids = np.setdiff1d(np.flatnonzero(Lm.ok[:]), in_window)
     assert len(ids) >= 3
     far, broken, kept = ids[:3]
-    c = engine._t_est[Lm.anchor[far]]
+    c = engine.map.t_world_keyframe[Lm.anchor[far]]
     v = Lm.v[far] / np.linalg.norm(Lm.v[far])
     away = np.cross(v, [0.0, 0.0, 1.0] if abs(v[2]) < 0.9 else [1.0, 0.0, 0.0])
     p = c + 100.0 * away / np.linalg.norm(away)  # a point of the line 100 m from the anchor camera

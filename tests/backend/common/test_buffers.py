@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from backend.pipeline.buffers import RowBuffer
+from backend.common.buffers import RowBuffer
 
 
 def _row(i: int) -> np.ndarray:

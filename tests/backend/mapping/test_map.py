@@ -1,0 +1,53 @@
+"""The map of a run (backend/mapping/map.py): what a copy holds, and the frame poses that
+follow their keyframes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from backend.geometry import so3
+from backend.geometry.camera import PinholeCamera
+from backend.mapping.map import Map
+
+CAMERA = PinholeCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, width=640, height=480, baseline=0.1)
+
+
+def _map_with_two_keyframes() -> Map:
+    m = Map(CAMERA)
+    m.add_keyframe(0, np.eye(3), np.zeros(3), stamp_ns=0, T_world_true=np.eye(4))
+    m.record_frame(1, 0, so3.exp(np.array([0.0, 0.0, 0.1])), np.array([0.1, 0.0, 0.0]))
+    m.add_keyframe(2, np.eye(3), np.array([0.2, 0.0, 0.0]), stamp_ns=100, T_world_true=None)
+    m.points.add(p_world=np.ones((2, 3)), ok=np.ones(2, bool), anchor=np.zeros(2, np.int64), anchor_uv=np.zeros((2, 2)), anchor_ur=np.zeros(2),
+                 plane=np.full(2, -1), desc=np.zeros((2, 32), np.uint8), n_kf=np.ones(2, np.int64))
+    return m
+
+
+def test_every_attribute_is_either_copied_or_shared() -> None:
+    """A new attribute of the map must say how a checkpoint treats it."""
+    m = _map_with_two_keyframes()
+    assert set(vars(m)) == set(Map.COPIED) | set(Map.SHARED)
+    assert not set(Map.COPIED) & set(Map.SHARED)
+
+
+def test_a_copy_is_independent() -> None:
+    m = _map_with_two_keyframes()
+    c = m.copy()
+    assert c.camera is m.camera and len(c) == 2 and len(c.points) == 2
+    c.points.p_world[0] = [5.0, 5.0, 5.0]
+    c.t_world_keyframe[1] = [9.0, 9.0, 9.0]
+    c.add_keyframe(3, np.eye(3), np.zeros(3), stamp_ns=200, T_world_true=None)
+    np.testing.assert_array_equal(m.points.p_world[0], [1.0, 1.0, 1.0])
+    np.testing.assert_array_equal(m.t_world_keyframe[1], [0.2, 0.0, 0.0])
+    assert len(m) == 2 and len(c) == 3
+
+
+def test_frames_follow_their_reference_keyframe() -> None:
+    m = _map_with_two_keyframes()
+    frame, ref, R, t = m.frame_poses()
+    assert frame.tolist() == [0, 1, 2] and ref.tolist() == [0, 0, 1]
+    np.testing.assert_allclose(t[1], [0.1, 0.0, 0.0])
+    m.t_world_keyframe[0] = [1.0, 0.0, 0.0]  # the reference keyframe moved after a solve
+    _, _, R2, t2 = m.frame_poses()
+    np.testing.assert_allclose(t2[1], [1.1, 0.0, 0.0])
+    np.testing.assert_allclose(R2[1], R[1])
+    assert np.isnan(m.t_world_keyframe_true[1]).all() and m.keyframe_stamp_ns[1] == 100
