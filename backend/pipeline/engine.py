@@ -9,7 +9,7 @@ Ground truth, where the input has it, travels in every snapshot (`Snapshot.groun
 from __future__ import annotations
 
 import copy
-from collections.abc import Iterable
+import dataclasses
 from typing import Any, Protocol, runtime_checkable
 
 from backend.optim.structure import HessianStructure
@@ -66,15 +66,36 @@ class Engine(Protocol):
         ...
 
 
-def checkpoint_of(engine: object, *, shared: Iterable[str]) -> dict[str, Any]:
-    """A deep copy of an engine's attributes except those named in `shared` (the input,
-    settings, callbacks and immutable snapshots, which are kept by reference)."""
-    keep = set(shared)
-    state = vars(engine)
-    return {"copied": copy.deepcopy({k: v for k, v in state.items() if k not in keep}), "shared": {k: state[k] for k in keep if k in state}}
+@dataclasses.dataclass(frozen=True)
+class EngineCheckpoint:
+    """An engine's state at one moment, explicitly: a copy of its map (None for an engine
+    without a `backend.mapping.map.Map`), a deep copy of the attributes the engine declares
+    in its `STATE`, and those it declares `SHARED` (the input, settings, callbacks, immutable
+    snapshots), by reference; so are functions set on the instance (callbacks, patches). Any
+    other attribute declared in neither is an error at once, not a silent deep copy."""
 
+    map: Any
+    state: dict[str, Any]
+    shared: dict[str, Any]
 
-def restore_from(engine: object, checkpoint: dict[str, Any]) -> None:
-    """Put a :func:`checkpoint_of` state back (copied again, so it can be restored again)."""
-    vars(engine).update(copy.deepcopy(checkpoint["copied"]))
-    vars(engine).update(checkpoint["shared"])
+    @staticmethod
+    def of(engine: Any, the_map: Any = None) -> EngineCheckpoint:
+        declared = set(engine.STATE) | set(engine.SHARED) | ({"map"} if the_map is not None else set())
+        extra = set(vars(engine)) - declared
+        functions = {name for name in extra if callable(getattr(engine, name))}  # callbacks or patches set on the instance: shared
+        if extra - functions:
+            raise RuntimeError(f"{type(engine).__name__}: attributes neither in STATE nor in SHARED: {', '.join(sorted(extra - functions))}")
+        return EngineCheckpoint(
+            map=None if the_map is None else the_map.copy(),
+            state=copy.deepcopy({name: getattr(engine, name) for name in engine.STATE if hasattr(engine, name)}),
+            shared={name: getattr(engine, name) for name in (*engine.SHARED, *sorted(functions)) if hasattr(engine, name)},
+        )
+
+    def restore_into(self, engine: Any) -> Any:
+        """Put the state back into `engine` (copied again, so it can be restored again);
+        returns a fresh copy of the map for the engine to hold (None without one)."""
+        for name, value in copy.deepcopy(self.state).items():
+            setattr(engine, name, value)
+        for name, value in self.shared.items():
+            setattr(engine, name, value)
+        return None if self.map is None else self.map.copy()

@@ -40,7 +40,7 @@ from backend.optim.variant import VARIANTS, Variant
 from backend.optim.solver import optimize
 from backend.optim.structure import HessianStructure, hessian_structure
 from backend.common.buffers import RowBuffer
-from backend.pipeline.engine import EndOfSequence, checkpoint_of, restore_from
+from backend.pipeline.engine import EndOfSequence, EngineCheckpoint
 from backend.pipeline.snapshot import (
     Detection,
     LineLandmarks,
@@ -159,11 +159,18 @@ class SimEngine:
     def set_variant(self, variant: Variant) -> None:
         self._variant = Variant.parse(variant)
 
-    def checkpoint(self) -> object:
-        return checkpoint_of(self, shared=("settings", "_world", "_last"))
+    # A checkpoint deep-copies STATE and keeps SHARED by reference (backend.pipeline.engine.EngineCheckpoint).
+    STATE: tuple[str, ...] = (
+        "_R_est", "_t_est", "_R_gt", "_t_gt", "_R_odo", "_t_odo", "_stamp", "_obs", "_p_world", "_p_anchor", "_p_anchor_uv", "_p_ok", "_p_plane",
+        "_l_m", "_l_v", "_l_anchor", "_l_anchor_uv", "_l_ok", "_l_plane", "_planes", "_plane_n", "_plane_d", "_plane_consensus", "_variant", "_window",
+    )
+    SHARED: tuple[str, ...] = ("settings", "_world", "_last")
 
-    def restore(self, state: object) -> None:
-        restore_from(self, state)  # type: ignore[arg-type]
+    def checkpoint(self) -> EngineCheckpoint:
+        return EngineCheckpoint.of(self)
+
+    def restore(self, state: EngineCheckpoint) -> None:
+        state.restore_into(self)
 
     def reset(self) -> None:
         w = self._world

@@ -55,37 +55,34 @@ from collections.abc import Callable
 import numpy as np
 
 from backend.data.source import StereoSource
-from backend.eval.trajectory import ate_rmse, translational_rmse
 from backend.frontend.lines import LineSettings, Segments, StereoSegments, stereo_segments
 from backend.frontend.points import Keypoints, PointSettings, best_matches, detect_points, pair_hamming, stereo_points
 from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
 from backend.geometry import line as line_geo
 from backend.geometry import so3
-from backend.geometry.camera import PinholeCamera
 from backend.mapping import coplanar
 from backend.mapping.map import KeyframeObservations, Map
-from backend.mapping.window import Window, WindowSettings, assemble_window, write_back
-from backend.optim.problem import ProblemData, build_problem
+from backend.mapping.window import Window, WindowSettings
+from backend.optim.problem import build_problem
 from backend.optim.variant import Variant
-from backend.optim.solver import optimize
 from backend.optim.structure import HessianStructure, hessian_structure
-from backend.pipeline.engine import EndOfSequence, checkpoint_of, restore_from
+from backend.pipeline.engine import EndOfSequence, EngineCheckpoint
 from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED, draw_keyframe_image
 from backend.pipeline.snapshot import (
     Detection,
     FrameTrajectory,
     KeyframeImage,
-    LineLandmarks,
-    Metrics,
     OptimizationReport,
-    PlaneLandmark,
-    PointLandmarks,
     Snapshot,
     Tracking,
     Trajectory,
     frozen,
 )
-from backend.pipeline.tracking import match_by_projection, merge_matches, refine_pose, relocalize
+from backend.pipeline.stages.culling import CullSettings, cull, local_map
+from backend.pipeline.stages.planes import FeatureStates, detect_planes, segment_keyframe
+from backend.pipeline.stages.snapshot import build_snapshot
+from backend.pipeline.stages.solve import SolveSettings, VisualWindow, WindowExtension, solve_window
+from backend.pipeline.tracking import match_by_projection, merge_matches, pixel_errors, refine_pose, relocalize
 
 
 
@@ -192,11 +189,20 @@ class StereoEngine:
     def set_variant(self, variant: Variant) -> None:
         self._variant = Variant.parse(variant)
 
-    def checkpoint(self) -> object:
-        return checkpoint_of(self, shared=("data_source", "settings", "_name", "segmenter", "camera", "on_frame", "_last"))
+    # A checkpoint: the map's own copy, a deep copy of the engine's state below, and the
+    # attributes shared by reference (the input, settings, callbacks, the last immutable
+    # snapshot). Every attribute is one of the three (tests/backend/pipeline/test_checkpoints.py).
+    STATE: tuple[str, ...] = (
+        "_next_frame", "_variant", "_local_points", "_local_lines", "_frame_poses", "_last_kf_tracked", "_window", "_messages",
+        "_det_state", "_instance_plane", "_new_point_kp", "_line_seg_index",
+    )
+    SHARED: tuple[str, ...] = ("data_source", "settings", "_name", "segmenter", "camera", "on_frame", "_last")
 
-    def restore(self, state: object) -> None:
-        restore_from(self, state)  # type: ignore[arg-type]
+    def checkpoint(self) -> EngineCheckpoint:
+        return EngineCheckpoint.of(self, self.map)
+
+    def restore(self, state: EngineCheckpoint) -> None:
+        self.map = state.restore_into(self)
 
     def reset(self) -> None:
         self._next_frame = 0
@@ -387,7 +393,7 @@ class StereoEngine:
                 return _Tracked(R, t, match, 0, False)
             ref = refine_pose(cam, R, t, P[m], kp.uv[match[m]], sigma_px=s.pixel_sigma, cauchy=s.cauchy)
             R, t = ref.R_world_camera, ref.t_world_camera
-            err = _pixel_errors(cam, R, t, P[m], kp.uv[match[m]])
+            err = pixel_errors(cam, R, t, P[m], kp.uv[match[m]])
             match = match.copy()
             match[m[~(err < s.outlier_px)]] = -1
         inliers = int(np.count_nonzero(match >= 0))
@@ -461,7 +467,7 @@ class StereoEngine:
             seg_uv = np.concatenate([segs.left.start[l_match[ml]], segs.left.end[l_match[ml]]], axis=1) if len(ml) else None
             ref = refine_pose(cam, R, t, self.map.points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]], lines_world=lines_world, segments_uv=seg_uv, sigma_px=s.pixel_sigma, cauchy=s.cauchy)
             R, t = ref.R_world_camera, ref.t_world_camera
-            err = _pixel_errors(cam, R, t, self.map.points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]])
+            err = pixel_errors(cam, R, t, self.map.points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]])
             p_match = p_match.copy()
             p_match[mp[~(err < s.outlier_px)]] = -1
         timing["tracking"] += 1e3 * (time.perf_counter() - t0) / frames_per
@@ -497,35 +503,28 @@ class StereoEngine:
     def _detect_and_solve(self, k: int, i: int, obs, new_points, new_lines, rng, timing: dict[str, float], *, images: tuple[np.ndarray, np.ndarray] | None):  # noqa: ANN001, ANN202
         """Steps 4–6 for keyframe k (frame i): plane segmentation of `images` (the
         segmenter's left and right; None: no planes this keyframe) and co-planar detection,
-        the window bundle adjustment, culling. Returns the masks (or None), the detection,
-        the solver report and the Hessian image."""
+        the window bundle adjustment, culling and the next local map (backend/pipeline/stages).
+        Returns the masks (or None), the detection, the solver report and the Hessian image."""
         masks: PlaneMasks | None = None
         detection = Detection((), (), (), (), ())
-        p_ids = obs.point_id[self.map.points.ok[obs.point_id]]
-        l_ids = obs.line_id[self.map.lines.ok[obs.line_id]]
-        self._det_state = (p_ids, np.zeros(len(p_ids), np.uint8), l_ids, np.zeros(len(l_ids), np.uint8))
+        self._det_state = FeatureStates.undetected(self.map, obs).as_tuple()
         timing["plane_seg"] = timing["plane_fit"] = 0.0
         if images is not None:
             t0 = time.perf_counter()
-            masks = self._segment(i, *images)
+            masks = segment_keyframe(self.segmenter, i, *images, self.camera)
             timing["plane_seg"] = 1e3 * (time.perf_counter() - t0)
             t0 = time.perf_counter()
-            detection = self._detect_planes(obs, masks, new_points, new_lines, rng)
+            found = detect_planes(self.map, obs, masks, new_points, new_lines, rng, settings=self.settings.coplanar)
+            detection, self._det_state, self._instance_plane = found.detection, found.features.as_tuple(), found.instance_plane
             timing["plane_fit"] = 1e3 * (time.perf_counter() - t0)
         report, hessian = self._optimize(k, timing)
         t0 = time.perf_counter()
-        self._cull(k)
-        self._update_local_map(k)
+        s = self.settings
+        w0, _ = self._window_range(k)
+        cull(self.map, k, w0, settings=CullSettings(s.outlier_px, s.min_depth_m, s.max_depth_m, s.cull_after_keyframes, s.min_keyframe_observations))
+        self._local_points, self._local_lines = local_map(self.map, k, w0)
         timing["culling"] = 1e3 * (time.perf_counter() - t0)
         return masks, detection, report, hessian
-
-    def _segment(self, i: int, left: np.ndarray, right: np.ndarray) -> PlaneMasks:
-        """Plane instances of frame i: from the segmenter's images, or by frame for the
-        oracle of rendered scenes (`segment_frame`)."""
-        by_frame = getattr(self.segmenter, "segment_frame", None)
-        if by_frame is not None:
-            return by_frame(i)
-        return self.segmenter.segment(left, right, self.camera)
 
     def _add_keyframe(self, i: int, R: np.ndarray, t: np.ndarray) -> None:
         """Frame i becomes a keyframe at (R, t), with its true pose where the input has it."""
@@ -624,41 +623,6 @@ class StereoEngine:
         dist = pair_hamming(self.map.lines.desc[ids[rows]], segments.descriptors[cols])
         return best_matches(rows, cols, dist, n_rows=len(ids), max_distance=s.lines.max_hamming, ratio=s.lines.ratio)
 
-    def _detect_planes(self, obs: KeyframeObservations, masks: PlaneMasks, new_points: np.ndarray, new_lines: np.ndarray, rng: np.random.Generator) -> Detection:
-        """Co-planar detection on the keyframe (paper §III-A), features labelled by the
-        instance masks: a point by its pixel, a segment when both endpoints (pulled 3 px
-        inward) fall in the same instance."""
-        labels = masks.labels
-        P, Lm = self.map.points, self.map.lines
-        p_sel = P.ok[obs.point_id]
-        l_sel = Lm.ok[obs.line_id]
-        p_ids, l_ids = obs.point_id[p_sel], obs.line_id[l_sel]
-        p_lab = _labels_at(labels, obs.point_uv[p_sel])
-        seg = obs.line_uv[l_sel]
-        direction = seg[:, 2:] - seg[:, :2]
-        direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-9)
-        lab_s = _labels_at(labels, seg[:, :2] + 3.0 * direction)
-        lab_e = _labels_at(labels, seg[:, 2:] - 3.0 * direction)
-        l_lab = np.where(lab_s == lab_e, lab_s, -1)
-        det = coplanar.detect_keyframe_planes(
-            point_ids=p_ids, point_label=p_lab, p_world=P.p_world[p_ids], line_ids=l_ids, line_label=l_lab, segments_world=self.map.segments_world(l_ids),
-            point_plane=P.plane[:], line_plane=Lm.plane[:], planes=self.map.planes, rng=rng, settings=self.settings.coplanar,
-        )
-        # New landmarks the detection did not place: test them against the existing planes.
-        pts = new_points[P.plane[new_points] < 0]
-        lns = new_lines[Lm.plane[new_lines] < 0]
-        if len(self.map.planes) and (len(pts) or len(lns)):
-            N, D = self.map.planes.arrays()
-            q_p, q_l = coplanar.associate_to_planes(P.p_world[pts], self.map.segments_world(lns), N, D, [self.map.hull(q) for q in range(len(N))], threshold_m=self.settings.coplanar.threshold_m)
-            P.plane[pts[q_p >= 0]] = q_p[q_p >= 0]
-            Lm.plane[lns[q_l >= 0]] = q_l[q_l >= 0]
-        self._det_state = (p_ids, det.point_state, l_ids, det.line_state)
-        self._instance_plane = np.full(masks.count, -1, np.int64)
-        for q, plane, accepted in zip(det.instance, det.plane, det.accepted):
-            if accepted and 0 <= q < masks.count:
-                self._instance_plane[q] = plane
-        return Detection(det.instance, det.candidates, det.inliers, det.accepted, det.plane)
-
     # ------------------------------------------------------------------ window bundle adjustment
 
     def _window_range(self, k: int) -> tuple[int, int]:
@@ -666,128 +630,16 @@ class StereoEngine:
         w0 = max(self.map.segment_start, k - s.window + 1)
         return w0, max(self.map.segment_start, w0 - s.fixed_horizon)
 
-    def _window_data(self, k: int) -> Window:
-        s = self.settings
-        w0, oldest = self._window_range(k)
-        return assemble_window(
-            self.map, k, w0=w0, oldest=oldest, settings=WindowSettings(s.min_depth_m, s.pixel_sigma, s.min_plane_support),
-            fix_first=self._fix_first_pose(), keep_landmarks=self._keep_landmarks(w0), extra_planes=self._extra_window_planes(),
-        )
-
-    def _keep_landmarks(self, w0: int) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None:
-        """Which of the landmarks the window's keyframes observe its problem keeps (None:
-        all of them here; VIO leaves out those marginalized with their anchor)."""
-        return None
-
-    def _extra_window_planes(self) -> np.ndarray | None:
-        """Planes the window optimizes besides those its landmarks support (VIO: its prior's)."""
-        return None
-
-    def _fix_first_pose(self) -> bool:
-        """Whether the first window pose is held as the gauge when no older one is."""
-        return True
-
-    def _problem_data(self, win: Window) -> ProblemData:
-        """The window's data as solved (VIO adds the inertial part)."""
-        return win.data
-
-    def _after_solve(self, win: Window, problem, state) -> None:  # noqa: ANN001
-        """Called with the window's solution after the map is updated (VIO: velocities,
-        biases, marginalization)."""
+    def _window_extension(self) -> WindowExtension:
+        """What this engine's window adds to the visual one (nothing; VIO: its inertial part)."""
+        return VisualWindow()
 
     def _optimize(self, k: int, timing: dict[str, float]) -> tuple[OptimizationReport, HessianStructure | None]:
         s = self.settings
-        t0 = time.perf_counter()
-        win = self._window_data(k)
-        win = dataclasses.replace(win, data=self._problem_data(win))
-        self._window = win
-        problem = build_problem(win.data, self._variant, robust_px=s.cauchy)
-        timing["setup"] = 1e3 * (time.perf_counter() - t0)
-        free = ~win.data.fixed_poses
-        if not np.any(free) or problem.layout.n_params == 0:  # a segment's first keyframe: nothing to solve
-            timing["optimization"] = timing["linearize"] = timing["solve"] = 0.0
-            report = OptimizationReport(self._variant, s.method, 0, 0.0, 0.0, True, problem.layout.n_items, problem.layout.n_params, int(free.sum()), int((~free).sum()), timing)
-            return report, None
-        state, rep = optimize(problem, method=s.method, max_iterations=s.max_iterations)
-        timing["optimization"] = rep.time_ms
-        timing["linearize"] = rep.linearize_ms
-        timing["solve"] = rep.solve_ms
-        t0 = time.perf_counter()
-        write_back(self.map, win, problem, state, self._variant)
-        self._after_solve(win, problem, state)
-        timing["update"] = 1e3 * (time.perf_counter() - t0)
-        hessian = None
-        if s.hessian:
-            t0 = time.perf_counter()
-            hessian = hessian_structure(problem, state)
-            timing["hessian"] = 1e3 * (time.perf_counter() - t0)
-        report = OptimizationReport(
-            variant=self._variant, method=s.method, iterations=rep.iterations, initial_cost=rep.initial_cost, final_cost=rep.final_cost,
-            converged=rep.converged, items=rep.items, params=rep.params, window=int(free.sum()), fixed_poses=int((~free).sum()), timing_ms=timing,
-            termination=rep.termination, dropped_landmarks=rep.dropped_landmarks,
-        )
+        w0, oldest = self._window_range(k)
+        settings = SolveSettings(method=s.method, max_iterations=s.max_iterations, cauchy=s.cauchy, hessian=s.hessian, window=WindowSettings(s.min_depth_m, s.pixel_sigma, s.min_plane_support))
+        self._window, report, hessian = solve_window(self.map, k, self._variant, w0=w0, oldest=oldest, extension=self._window_extension(), settings=settings, timing=timing)
         return report, hessian
-
-    def _cull(self, k: int) -> None:
-        """Drop window observations whose error stays above `outlier_px` after the solve;
-        remove landmarks whose anchor view is such an outlier, that lie behind their anchor
-        or beyond `max_depth_m` (a point; a line: its nearest point, or not finite), or that
-        too few keyframes re-observed."""
-        s = self.settings
-        cam = self.camera
-        P, Lm = self.map.points, self.map.lines
-        w0, _ = self._window_range(k)
-        bad_p = np.zeros(len(P), bool)
-        bad_l = np.zeros(len(Lm), bool)
-        for j in range(w0, k + 1):
-            o = self.map.observations[j]
-            R, t = self.map.R_world_keyframe[j], self.map.t_world_keyframe[j]
-            err = _pixel_errors(cam, R, t, P.p_world[o.point_id], o.point_uv)
-            keep_p = (err < s.outlier_px) & P.ok[o.point_id]
-            anchor_p = P.anchor[o.point_id] == j
-            bad_p[o.point_id[anchor_p & ~(err < s.outlier_px)]] = True
-            err_l = _line_errors(cam, R, t, Lm.m[o.line_id], Lm.v[o.line_id], o.line_uv)
-            keep_l = (err_l < s.outlier_px) & Lm.ok[o.line_id]
-            anchor_l = Lm.anchor[o.line_id] == j
-            bad_l[o.line_id[anchor_l & ~(err_l < s.outlier_px)]] = True
-            dropped_p = o.point_id[~keep_p & ~anchor_p]
-            P.n_kf[dropped_p] = P.n_kf[dropped_p] - 1
-            dropped_l = o.line_id[~keep_l & ~anchor_l]
-            Lm.n_kf[dropped_l] = Lm.n_kf[dropped_l] - 1
-            self.map.observations[j] = KeyframeObservations(o.point_id[keep_p | anchor_p], o.point_uv[keep_p | anchor_p], o.point_ur[keep_p | anchor_p], o.line_id[keep_l | anchor_l], o.line_uv[keep_l | anchor_l], o.line_ruv[keep_l | anchor_l])
-        # Depth in the anchor and re-observation.
-        ids = np.flatnonzero(P.ok[:])
-        a = P.anchor[ids]
-        z = np.einsum("nji,nj->ni", self.map.R_world_keyframe[a], P.p_world[ids] - self.map.t_world_keyframe[a])[:, 2]
-        bad_p[ids[~((z > 0.5 * s.min_depth_m) & (z < 2.0 * s.max_depth_m))]] = True
-        stale = (P.born[ids] <= k - s.cull_after_keyframes) & (a >= self.map.segment_start) & (P.n_kf[ids] < s.min_keyframe_observations)
-        bad_p[ids[stale]] = True
-        ids_l = np.flatnonzero(Lm.ok[:])
-        # Lines as points: their nearest point to the anchor camera within the depth range
-        # (a solve can push a line weakly seen to infinity, where its coordinates overflow).
-        a_l = Lm.anchor[ids_l]
-        with np.errstate(over="ignore", invalid="ignore"):
-            m_c, v_c = line_geo.to_camera(Lm.m[ids_l], Lm.v[ids_l], self.map.R_world_keyframe[a_l], self.map.t_world_keyframe[a_l])
-            reach = np.linalg.norm(line_geo.closest_point_to_origin(m_c, v_c), axis=1)
-        bad_l[ids_l[~(reach < 2.0 * s.max_depth_m)]] = True
-        stale_l = (Lm.born[ids_l] <= k - s.cull_after_keyframes) & (Lm.anchor[ids_l] >= self.map.segment_start) & (Lm.n_kf[ids_l] < s.min_keyframe_observations)
-        bad_l[ids_l[stale_l]] = True
-        P.ok[np.flatnonzero(bad_p)] = False
-        Lm.ok[np.flatnonzero(bad_l)] = False
-
-    def _update_local_map(self, k: int) -> None:
-        """The local map: the landmarks of the current map segment (tracking matches only
-        those that project into the image, so revisited places are re-associated); the
-        window's own landmarks first."""
-        w0, _ = self._window_range(k)
-        win = [self.map.observations[j] for j in range(w0, k + 1)]
-        pts = np.unique(np.concatenate([o.point_id for o in win]))
-        lns = np.unique(np.concatenate([o.line_id for o in win]))
-        P, Lm = self.map.points, self.map.lines
-        older_p = np.flatnonzero(P.ok[:] & (P.anchor[:] >= self.map.segment_start))
-        older_l = np.flatnonzero(Lm.ok[:] & (Lm.anchor[:] >= self.map.segment_start))
-        self._local_points = np.concatenate([pts[P.ok[pts]], np.setdiff1d(older_p, pts)])
-        self._local_lines = np.concatenate([lns[Lm.ok[lns]], np.setdiff1d(older_l, lns)])
 
     # ------------------------------------------------------------------ snapshot
 
@@ -805,39 +657,7 @@ class StereoEngine:
 
     def _snapshot(self, k: int, detection: Detection, det_state: tuple, report: OptimizationReport, hessian: HessianStructure | None, *, image: KeyframeImage | None, tracking: Tracking | None, message: str) -> Snapshot:
         w0, _ = self._window_range(k)
-        n = k + 1
-        estimate = Trajectory((
-            (self.map.keyframe_stamp_ns.prefix(w0), self.map.R_world_keyframe.prefix(w0), self.map.t_world_keyframe.prefix(w0)),
-            (frozen(self.map.keyframe_stamp_ns[w0:n].copy()), frozen(self.map.R_world_keyframe[w0:n].copy()), frozen(self.map.t_world_keyframe[w0:n].copy())),
-        ))
-        gt = Trajectory.of(self.map.keyframe_stamp_ns.prefix(n), self.map.R_world_keyframe_true.prefix(n), self.map.t_world_keyframe_true.prefix(n))
-        P, Lm = self.map.points, self.map.lines
-        p_ids = np.flatnonzero(P.ok[:])
-        p_det = np.zeros(len(P), np.uint8)
-        p_det[det_state[0]] = det_state[1]
-        l_ids = np.flatnonzero(Lm.ok[:])
-        l_det = np.zeros(len(Lm), np.uint8)
-        l_det[det_state[2]] = det_state[3]
-        points = PointLandmarks(frozen(p_ids), frozen(P.p_world[p_ids].copy()), frozen(P.plane[p_ids].copy()), frozen(P.anchor[p_ids].copy()), frozen(p_det[p_ids]))
-        lines = LineLandmarks(frozen(l_ids), frozen(self.map.segments_world(l_ids)), frozen(Lm.plane[l_ids].copy()), frozen(Lm.anchor[l_ids].copy()), frozen(l_det[l_ids]))
-        planes = []
-        for q in range(len(self.map.planes)):
-            n_p, n_l = int(np.sum((P.plane[:] == q) & P.ok[:])), int(np.sum((Lm.plane[:] == q) & Lm.ok[:]))
-            if n_p + n_l == 0:
-                continue
-            planes.append(PlaneLandmark(
-                id=q, n=frozen(np.array(self.map.planes.n[q])), d=float(self.map.planes.d[q]), hull_world=frozen(self.map.hull(q)), n_points=n_p, n_lines=n_l,
-                last_consensus=self.map.planes.consensus[q][0], last_candidates=self.map.planes.consensus[q][1],
-            ))
-        valid = np.isfinite(gt.t_world_camera[:, 0])
-        t_est, t_gt = estimate.t_world_camera[valid], gt.t_world_camera[valid]
-        rmse = 100.0 * translational_rmse(t_est, t_gt) if len(t_gt) else float("nan")
-        ate = 100.0 * ate_rmse(t_est, t_gt, align="se3") if len(t_gt) >= 3 else rmse
-        return Snapshot(
-            keyframe=k, timestamp_ns=int(self.map.keyframe_stamp_ns[k]), source=self._name, camera=self.camera, estimate=estimate, ground_truth=gt if valid.any() else None,
-            window=frozen(np.arange(w0, n)), points=points, lines=lines, planes=tuple(planes), detection=detection,
-            report=report, hessian=hessian, metrics=Metrics(rmse_cm=rmse, ate_cm=ate), message=message, image=image, tracking=tracking,
-        )
+        return build_snapshot(self.map, k, w0, detection, det_state, report, hessian, source=self._name, image=image, tracking=tracking, message=message)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -859,34 +679,3 @@ def _extrapolate(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray,
     R_rel = so3.exp(steps * so3.log(R0.T @ R1))
     t_rel = steps * (R0.T @ (t1 - t0))
     return so3.project_to_so3(R1 @ R_rel), t1 + R1 @ t_rel
-
-
-def _pixel_errors(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, p_world: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Reprojection error norms (M,) in pixels; inf behind the camera."""
-    p_cam = (p_world - t) @ R
-    with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.linalg.norm(camera.project(p_cam) - uv, axis=1)
-    return np.where(p_cam[:, 2] > 1e-6, err, np.inf)
-
-
-def _line_errors(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, m_world: np.ndarray, v_world: np.ndarray, segments_uv: np.ndarray) -> np.ndarray:
-    """Larger endpoint-to-line distance (M,) in pixels of world lines seen as segments (M, 4)."""
-    if len(m_world) == 0:
-        return np.zeros(0)
-    m_c, _ = line_geo.to_camera(m_world, v_world, R, t)
-    x_s, x_e = camera.normalize(segments_uv[:, :2]), camera.normalize(segments_uv[:, 2:])
-    norm = np.linalg.norm(m_c[:, :2], axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        err = camera.fx * np.maximum(np.abs(np.sum(x_s * m_c, axis=1)), np.abs(np.sum(x_e * m_c, axis=1))) / norm
-    return np.where(np.isfinite(err), err, np.inf)
-
-
-def _labels_at(labels: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Instance label (-1: none) at pixels (M, 2), -1 outside the image."""
-    h, w = labels.shape
-    u = np.rint(uv[:, 0]).astype(np.int64)
-    v = np.rint(uv[:, 1]).astype(np.int64)
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    out = np.full(len(uv), -1, np.int64)
-    out[inside] = labels[v[inside], u[inside]]
-    return out

@@ -13,6 +13,7 @@ import dataclasses
 
 import numpy as np
 
+from backend.geometry import line as line_geo
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.optim import factors
@@ -237,3 +238,23 @@ def merge_matches(match: np.ndarray, more: np.ndarray, *, n_keypoints: int) -> n
     merged = match.copy()
     merged[extra] = more[extra]
     return merged
+
+
+def pixel_errors(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, p_world: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Reprojection error norms (M,) in pixels; inf behind the camera."""
+    p_cam = (p_world - t) @ R
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.linalg.norm(camera.project(p_cam) - uv, axis=1)
+    return np.where(p_cam[:, 2] > 1e-6, err, np.inf)
+
+
+def line_errors(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, m_world: np.ndarray, v_world: np.ndarray, segments_uv: np.ndarray) -> np.ndarray:
+    """Larger endpoint-to-line distance (M,) in pixels of world lines seen as segments (M, 4)."""
+    if len(m_world) == 0:
+        return np.zeros(0)
+    m_c, _ = line_geo.to_camera(m_world, v_world, R, t)
+    x_s, x_e = camera.normalize(segments_uv[:, :2]), camera.normalize(segments_uv[:, 2:])
+    norm = np.linalg.norm(m_c[:, :2], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = camera.fx * np.maximum(np.abs(np.sum(x_s * m_c, axis=1)), np.abs(np.sum(x_e * m_c, axis=1))) / norm
+    return np.where(np.isfinite(err), err, np.inf)

@@ -70,8 +70,8 @@ from backend.optim import inertial
 from backend.optim.marginalization import marginalize, remap
 from backend.mapping.map import KeyframeObservations
 from backend.mapping.window import Window
+from backend.pipeline.stages.solve import WindowExtension
 from backend.optim.problem import DistancePrior, ProblemData
-from backend.pipeline.engine import checkpoint_of
 from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
 from backend.pipeline.stereo_engine import (
     POINT_NEW,
@@ -166,8 +166,13 @@ class VioEngine(StereoEngine):
 
     # ------------------------------------------------------------------ Engine interface
 
-    def checkpoint(self) -> object:
-        return checkpoint_of(self, shared=("data_source", "settings", "_name", "segmenter", "camera", "on_frame", "_last", "imu", "imu_noise", "T_body_camera", "imu_params"))
+    STATE = (
+        *StereoEngine.STATE,
+        "_vel", "_bias", "_imu_factors", "_prior", "_initialized", "_init_status", "_init_report", "_init_keyframe", "_first_init",
+        "_kf_features", "_kf_segments", "_bootstrapping", "_flow", "_restart_flow", "_ftracks", "_ftrack_image", "_track_kp", "_mflow", "_mflow_kp",
+        "_lost_run", "_last_frame_ns", "_R_flow", "_imu_only_run", "_marginalized_before",
+    )
+    SHARED = (*StereoEngine.SHARED, "imu", "imu_noise", "T_body_camera", "imu_params")
 
     def reset(self) -> None:
         super().reset()
@@ -932,7 +937,7 @@ class VioEngine(StereoEngine):
             out["scale_error_pct"] = float(100.0 * (d_est - d_true) / max(d_true, 1e-12))
         return out
 
-    # ------------------------------------------------------------------ window (hooks of the stereo pipeline)
+    # ------------------------------------------------------------------ window (the inertial WindowExtension of stages.solve)
 
     def _window_range(self, k: int) -> tuple[int, int]:
         s = self.settings
@@ -942,21 +947,28 @@ class VioEngine(StereoEngine):
             return w0, w0
         return w0, max(self.map.segment_start, w0 - s.fixed_horizon)
 
-    def _keep_landmarks(self, w0: int) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None:
+    def _window_extension(self) -> WindowExtension:
+        return self
+
+    def keep_landmarks(self, w0: int) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None:
+        """After the initialization, landmarks marginalized with their anchor stay out."""
         if not self._initialized:
             return None
         points, lines = self.map.points, self.map.lines
         return lambda pts, lns: (pts[points.anchor[pts] >= w0], lns[lines.anchor[lns] >= w0])
 
-    def _extra_window_planes(self) -> np.ndarray | None:
+    def extra_planes(self) -> np.ndarray | None:
+        """The planes the marginalization prior holds."""
         if self._initialized and self._prior is not None and len(self._prior.plane_index):
             return self._prior.plane_index
         return None
 
-    def _fix_first_pose(self) -> bool:
+    def fix_first_pose(self) -> bool:
+        """Before the initialization the first pose is the gauge; after it, the prior is."""
         return not self._initialized
 
-    def _problem_data(self, win: Window) -> ProblemData:
+    def problem_data(self, win: Window) -> ProblemData:
+        """Before the initialization the scale gauge; after it the IMU factors and the prior."""
         data = win.data
         kfs = win.kf
         if not self._initialized:
@@ -1001,7 +1013,8 @@ class VioEngine(StereoEngine):
             if np.max(np.abs(d[:3])) > s.rebias_accel or np.max(np.abs(d[3:])) > s.rebias_gyro:
                 self._imu_factors[int(a)] = self._preintegrate(int(a))
 
-    def _after_solve(self, win: Window, problem, state) -> None:  # noqa: ANN001
+    def after_solve(self, win: Window, problem, state) -> None:  # noqa: ANN001
+        """Velocities and biases back from the solution; marginalize when the window is full."""
         if not self._initialized or state.velocity is None:
             return
         free = ~win.data.fixed_poses

@@ -263,6 +263,8 @@ def test_a_non_finite_camera_in_one_tab_does_not_stop_the_others(debugger: Debug
 class SlowEngine(SimEngine):
     """The Monte-Carlo engine with 0.2 s per step: a burst of Steps takes long to run."""
 
+    STATE = (*SimEngine.STATE, "steps")
+
     def __init__(self) -> None:
         super().__init__(SimSettings(window=4, max_iterations=2))
         self.steps = 0

@@ -12,6 +12,7 @@ from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
 from backend.eval.planes import recovered_planes
 from backend.optim.variant import VARIANTS
+from backend.pipeline.stages.culling import CullSettings, cull
 from backend.pipeline.engine import EndOfSequence, Engine
 from backend.pipeline.overlay import decode_keyframe_image
 from backend.pipeline.snapshot import Snapshot
@@ -254,6 +255,7 @@ def test_lines_out_of_range_or_not_finite_are_culled() -> None:
     p = c + 100.0 * away / np.linalg.norm(away)  # a point of the line 100 m from the anchor camera
     Lm.m[far], Lm.v[far] = np.cross(p, v), v
     Lm.m[broken] = np.array([np.inf, 0.0, np.nan])
-    engine._cull(k)
+    st = engine.settings
+    cull(engine.map, k, w0, settings=CullSettings(st.outlier_px, st.min_depth_m, st.max_depth_m, st.cull_after_keyframes, st.min_keyframe_observations))
     assert not Lm.ok[far] and not Lm.ok[broken]
     assert Lm.ok[kept]
