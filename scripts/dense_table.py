@@ -1,10 +1,10 @@
-"""The README's dense-check table: `coplanar run --dense` for every variant on a rendered scene
+"""The dense-check table (docs/results/dense.md): `coplanar run --dense` for every variant on a rendered scene
 (default `room`, 30 s, seed 0, one run each): the TSDF mesh's distance to the true planes
 (median, 90th percentile, share within 2 cm) and the fusion time per keyframe.
 
     .venv/bin/python scripts/dense_table.py [--scene room] [--duration 30]
 
-Writes docs/pipeline/dense.json and replaces the dense-table block of README.md.
+Writes docs/pipeline/dense.json and replaces the dense-table block of docs/results/dense.md.
 """
 
 from __future__ import annotations
@@ -23,14 +23,14 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 from app import cli  # noqa: E402
 from backend.optim.variant import VARIANTS  # noqa: E402
-from euroc_table import _f, publish  # noqa: E402
+from euroc_table import _f, add_no_doc_option, publish  # noqa: E402
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scene", default="room")
     p.add_argument("--duration", type=float, default=30.0)
-    p.add_argument("--no-readme", action="store_true")
+    add_no_doc_option(p, "docs/results/dense.md")
     args = p.parse_args()
     runs, rows = [], []
     for variant in VARIANTS:
@@ -54,7 +54,7 @@ def main() -> int:
         "|---|---|---|---|---|---|---|",
         *rows,
     ])
-    return publish({"scene": args.scene, "duration_s": args.duration, "runs": runs}, body, json_name="dense.json", block="dense-table", readme=not args.no_readme)
+    return publish({"scene": args.scene, "duration_s": args.duration, "runs": runs}, body, json_name="dense.json", block="dense-table", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

@@ -1,11 +1,11 @@
-"""Regenerate the README's table of the six variants on a real EuRoC folder (by default the
-300-pair MH_01 slice in the project's shared data), each run exactly as a user runs it:
-`coplanar run --dataset DIR --variant V --out TMP`, one run each.
+"""Regenerate the table of the six variants on a real EuRoC folder (docs/results/euroc.md; by
+default the 300-pair MH_01 slice in the project's shared data), each run exactly as a user
+runs it: `coplanar run --dataset DIR --variant V --out TMP`, one run each.
 
     .venv/bin/python scripts/euroc_table.py [--dataset ../shared/data/euroc_mh01_slice]
 
 Writes docs/pipeline/euroc.json and replaces the text between the euroc-table markers in
-README.md. Per run (from `metrics.json`): ATE over every frame with ground truth after SE(3)
+docs/results/euroc.md. Per run (from `metrics.json`): ATE over every frame with ground truth after SE(3)
 and Sim(3) alignment (cm), RPE (cm per metre of path), frames evaluated, keyframes, lost
 frames, re-initializations, and the Table III stages in milliseconds.
 """
@@ -20,6 +20,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+from results_doc import write_block
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 VARIANTS = ("P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w")
@@ -41,22 +43,24 @@ def run_one(source: list[str], variant: str, *, keep: tuple[str, ...] = ()) -> d
     return metrics
 
 
-def publish(results: dict | None, body: str, *, json_name: str, block: str, readme: bool) -> int:
+def publish(results: dict | None, body: str, *, json_name: str, block: str, write_doc: bool) -> int:
     """Write `results` to docs/pipeline/JSON_NAME (unless None), put the table `body`
-    between README.md's `<!-- BLOCK:start -->` and `<!-- BLOCK:end -->` (if `readme`) and
-    print it; returns 0."""
+    between `<!-- BLOCK:start -->` and `<!-- BLOCK:end -->` of the docs/results/ page that
+    holds them (if `write_doc`; `results_doc.write_block`) and print it; returns 0."""
     if results is not None:
         out = ROOT / "docs" / "pipeline" / json_name
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(results, indent=2) + "\n")
-    if readme:
-        path = ROOT / "README.md"
-        text = path.read_text()
-        start, end = f"<!-- {block}:start -->", f"<!-- {block}:end -->"
-        i, j = text.index(start) + len(start), text.index(end)
-        path.write_text(text[:i] + "\n" + body + "\n" + text[j:])
+    if write_doc:
+        write_block(block, body)
     print(body)
     return 0
+
+
+def add_no_doc_option(parser: argparse.ArgumentParser, leaves: str) -> None:
+    """`--no-doc` (and its old name `--no-readme`): print the table, leave `leaves` alone."""
+    parser.add_argument("--no-doc", "--no-readme", dest="no_doc", action="store_true",
+                        help=f"print the table, leave {leaves} alone (--no-readme: the old name, from when the tables were in README.md)")
 
 
 def _f(value: float | None, digits: int = 2) -> str:
@@ -86,7 +90,7 @@ def table(results: list[dict], name: str) -> str:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dataset", type=pathlib.Path, default=DEFAULT_DATASET)
-    parser.add_argument("--no-readme", action="store_true", help="print the table, leave README.md alone")
+    add_no_doc_option(parser, "docs/results/euroc.md")
     args = parser.parse_args()
     if not args.dataset.is_dir():
         print(f"error: {args.dataset}: no such folder", file=sys.stderr)
@@ -98,7 +102,7 @@ def main() -> int:
         results.append(r)
         print(f"{variant:6s} ATE {_f(r['ate_rmse_cm'])} cm over {r['frames_evaluated']} frames, lost {r['lost_frames']}, "
               f"kf {r['keyframes']}, total/frame {_f(r['timing_ms']['total_per_frame'], 1)} ms ({r['wall_s']:.0f} s)", flush=True)
-    return publish({"dataset": args.dataset.name, "runs": results}, table(results, args.dataset.name), json_name="euroc.json", block="euroc-table", readme=not args.no_readme)
+    return publish({"dataset": args.dataset.name, "runs": results}, table(results, args.dataset.name), json_name="euroc.json", block="euroc-table", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Regenerate the README's fast-motion table: every variant on a rendered scene with fewer
+"""Regenerate the fast-motion table (docs/results/pipeline.md): every variant on a rendered scene with fewer
 frames (`--stride N`: 20/N frames per second) and faster motion along the same path
 (`--speed F`), each run exactly as `coplanar run --scene S --stride N --speed F` runs it,
 one run each.
@@ -8,7 +8,7 @@ one run each.
 `--cases` lists STRIDExSPEED pairs. `--jobs 2` runs two at a time (half the wall time; the
 accuracy columns are the same, the times are not comparable then and are left out).
 Writes docs/pipeline/fast_motion.json and replaces the text between the fast-motion-table
-markers in README.md. Per run (from `metrics.json` and the written ground truth): the
+markers in docs/results/pipeline.md. Per run (from `metrics.json` and the written ground truth): the
 motion between frames (median and largest translation and rotation), per-frame ATE after
 SE(3) alignment (cm), lost frames, re-initializations, frames relocalized by PnP,
 keyframes (and how many the fast-motion rule made), total time per frame (ms).
@@ -24,7 +24,7 @@ import sys
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from euroc_table import VARIANTS, _f, publish, run_one
+from euroc_table import VARIANTS, _f, add_no_doc_option, publish, run_one
 
 
 def motion_between_frames(groundtruth_tum: str) -> dict[str, float]:
@@ -70,7 +70,7 @@ def main() -> int:
     parser.add_argument("--cases", default="4x1,4x2,4x3", help="STRIDExSPEED pairs, comma-separated")
     parser.add_argument("--variants", default=",".join(VARIANTS))
     parser.add_argument("--jobs", type=int, default=1, help="runs at a time (more than 1: no time column)")
-    parser.add_argument("--no-readme", action="store_true", help="print the table, leave README.md alone")
+    add_no_doc_option(parser, "docs/results/pipeline.md")
     args = parser.parse_args()
     try:
         cases = [(int(a), float(b)) for a, b in (c.split("x") for c in args.cases.split(","))]
@@ -85,7 +85,7 @@ def main() -> int:
             print(f"{r['stride']}x{r['speed']:g} {r['variant']:6s} ATE {_f(r['ate_rmse_cm'])} cm, lost {r['lost_frames']}, "
                   f"re-init {r['reinitializations']}, relocalized {r['relocalized_frames']}, ({r['wall_s']:.0f} s)", flush=True)
     body = table(results, timed=args.jobs <= 1)
-    return publish({"scene": args.scene, "jobs": args.jobs, "runs": results}, body, json_name="fast_motion.json", block="fast-motion-table", readme=not args.no_readme)
+    return publish({"scene": args.scene, "jobs": args.jobs, "runs": results}, body, json_name="fast_motion.json", block="fast-motion-table", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

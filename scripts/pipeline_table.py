@@ -1,17 +1,17 @@
-"""Regenerate the README's stereo-pipeline tables (the paper's Tables II and III on the
-rendered scenes): every variant on every built-in scene, run exactly as `coplanar run` runs
-it (`--duration 30`, seed 0), one run each.
+"""Regenerate the stereo-pipeline tables (docs/results/pipeline.md; the paper's Tables II and
+III on the rendered scenes): every variant on every built-in scene, run exactly as
+`coplanar run` runs it (`--duration 30`, seed 0), one run each.
 
     .venv/bin/python scripts/pipeline_table.py [--duration 30] [--scenes room,corridor,boxes]
 
-Writes docs/pipeline/results.json and replaces the text between the pipeline-table markers
-in README.md. Per run: keyframe ATE after SE(3) alignment (cm), frames, keyframes, lost
-frames, the Table III stages (point D&M per frame; line D&M, plane segmentation, plane
-fitting and optimization per keyframe where the variant runs them; total per frame), and
-the planes recovered: ground-truth planes that cover at least 5 % of some keyframe's left
-image, matched by a map plane within 10° whose patch (the hull of its landmarks) lies within
-10 cm of the true plane (`backend.eval.planes.recovered_planes`; the JSON also keeps the
-older count by the offset at the world origin).
+Writes docs/pipeline/results.json and replaces the text between the pipeline-table markers in
+docs/results/pipeline.md. Per run: keyframe ATE after SE(3) alignment (cm), frames, keyframes,
+lost frames, the Table III stages (point D&M per frame; line D&M, plane segmentation, plane
+fitting and optimization per keyframe where the variant runs them; total per frame), and the
+planes recovered: ground-truth planes that cover at least 5 % of some keyframe's left image,
+matched by a map plane within 10° whose patch (the hull of its landmarks) lies within 10 cm of
+the true plane (`backend.eval.planes.recovered_planes`; the JSON also keeps the older count by
+the offset at the world origin).
 """
 
 from __future__ import annotations
@@ -29,12 +29,14 @@ import numpy as np  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
 
 from backend.eval.run_metrics import stereo_timing  # noqa: E402
 from backend.pipeline.factory import EngineConfig, make_engine  # noqa: E402
 from backend.eval.planes import recovered_planes  # noqa: E402
 from backend.optim.variant import VARIANTS  # noqa: E402
 from backend.pipeline.engine import EndOfSequence  # noqa: E402
+from results_doc import write_block  # noqa: E402
 
 MIN_SHARE = 0.05
 
@@ -115,8 +117,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=30.0)
     parser.add_argument("--scenes", default="room,corridor,boxes")
-    parser.add_argument("--no-readme", action="store_true", help="print the tables, leave README.md alone")
-    parser.add_argument("--from-json", action="store_true", help="rewrite the tables from docs/pipeline/results.json without running")
+    parser.add_argument("--no-doc", "--no-readme", dest="no_doc", action="store_true",
+                        help="print the tables, leave docs/results/pipeline.md alone (--no-readme: the old name, from when the tables were in README.md)")
+    parser.add_argument("--from-json", action="store_true", help="rewrite the tables in docs/results/pipeline.md from docs/pipeline/results.json without running")
     args = parser.parse_args()
     scenes = args.scenes.split(",")
     out = ROOT / "docs" / "pipeline" / "results.json"
@@ -131,12 +134,8 @@ def main() -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(results, indent=2) + "\n")
     body = tables(results, scenes)
-    if not args.no_readme:
-        readme = ROOT / "README.md"
-        text = readme.read_text()
-        start, end = "<!-- pipeline-table:start -->", "<!-- pipeline-table:end -->"
-        i, j = text.index(start) + len(start), text.index(end)
-        readme.write_text(text[:i] + "\n" + body + "\n" + text[j:])
+    if not args.no_doc:
+        write_block("pipeline-table", body)
     print(body)
     return 0
 

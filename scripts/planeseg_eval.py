@@ -1,10 +1,11 @@
 """Evaluate the learned plane-instance segmenter (assets/planeseg.onnx).
 
     .venv/bin/python scripts/planeseg_eval.py [--layouts 25] [--views 8] [--gallery docs/segmentation]
-    .venv/bin/python scripts/planeseg_eval.py --validation --model M.onnx --normal-weight W --no-readme   # choosing a setting
+    .venv/bin/python scripts/planeseg_eval.py --validation --model M.onnx --normal-weight W --no-doc   # choosing a setting
 
 `--validation` renders other random layouts (seed 1) and skips the real pairs: settings
-are chosen there, never on the held-out frames or the real pairs reported in the README.
+are chosen there, never on the held-out frames or the real pairs reported in
+docs/results/segmenter.md.
 
 1. Held-out rendered frames: random room layouts from seed 0 (training uses seeds from
    1000 on) and frames of the built-in scenes (room, corridor, boxes; never trained on),
@@ -22,7 +23,7 @@ are chosen there, never on the held-out frames or the real pairs reported in the
    piece or several (pieces of one plane are harmless downstream: the co-planar filter
    merges planes that agree).
 Writes the gallery (docs/segmentation/euroc_pair_{i}_learned.png), docs/pipeline/planeseg_eval.json
-and the planeseg-eval block of README.md.
+and the planeseg-eval block of docs/results/segmenter.md.
 """
 
 from __future__ import annotations
@@ -178,14 +179,16 @@ def main() -> int:
     parser.add_argument("--layouts", type=int, default=25)
     parser.add_argument("--views", type=int, default=8)
     parser.add_argument("--gallery", type=pathlib.Path, default=ROOT / "docs" / "segmentation")
-    parser.add_argument("--no-readme", action="store_true", help="print the table, leave README.md and docs/pipeline/planeseg_eval.json alone")
+    parser.add_argument("--no-doc", "--no-readme", dest="no_doc", action="store_true",
+                        help="print the table, leave docs/results/segmenter.md and docs/pipeline/planeseg_eval.json alone "
+                        "(--no-readme: the old name, from when the tables were in README.md)")
     parser.add_argument("--model", type=pathlib.Path, default=None, help="another .onnx file (default: the shipped one)")
     parser.add_argument("--normal-weight", type=float, default=None, help="mean shift's normal weight (default: the contract's)")
     parser.add_argument("--bandwidth", type=float, default=None, help="mean shift's bandwidth (default: the contract's)")
     parser.add_argument("--validation", action="store_true", help="validation layouts (seed 1) only; no real pairs, no gallery")
     args = parser.parse_args()
     if args.validation:
-        args.no_readme = True
+        args.no_doc = True
     settings = LearnedSegmenterSettings(normal_weight=args.normal_weight, bandwidth=args.bandwidth)
     if args.model is not None:
         settings = dataclasses.replace(settings, model=args.model)
@@ -254,8 +257,8 @@ def main() -> int:
             *found_lines,
         ]
     results["model_sha256"] = seg.contract.get("sha256")
-    # An experiment (--no-readme) only prints: the published JSON and README stay the shipped model's.
-    return publish(None if args.no_readme else results, "\n".join(lines), json_name="planeseg_eval.json", block="planeseg-eval", readme=not args.no_readme)
+    # An experiment (--no-doc) only prints: the published JSON and results page stay the shipped model's.
+    return publish(None if args.no_doc else results, "\n".join(lines), json_name="planeseg_eval.json", block="planeseg-eval", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """Render one stereo frame of every built-in scene and save left image | depth | plane mask
-as docs/scenes/<scene>.png (the README's gallery).
+as docs/scenes/<scene>.png (the gallery of docs/usage.md).
 
     .venv/bin/python scripts/scene_gallery.py
 """

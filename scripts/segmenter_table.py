@@ -5,7 +5,8 @@ frames, planes in the map), one run each, as `coplanar run` runs them.
 
     .venv/bin/python scripts/segmenter_table.py [--duration 30] [--variant PL-w]
 
-Writes docs/pipeline/segmenter.json and replaces the segmenter-table block of README.md.
+Writes docs/pipeline/segmenter.json and replaces the segmenter-table block of
+docs/results/segmenter.md.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from euroc_table import DEFAULT_DATASET, _f, publish, run_one as run_dataset
+from euroc_table import DEFAULT_DATASET, _f, add_no_doc_option, publish, run_one as run_dataset
 from pipeline_table import run_one as run_scene
 
 
@@ -22,7 +23,7 @@ def main() -> int:
     p.add_argument("--duration", type=float, default=30.0)
     p.add_argument("--variant", default="PL-w")
     p.add_argument("--scenes", default="room,corridor,boxes")
-    p.add_argument("--no-readme", action="store_true")
+    add_no_doc_option(p, "docs/results/segmenter.md")
     args = p.parse_args()
     rows, runs = [], []
     for scene in args.scenes.split(","):
@@ -48,7 +49,7 @@ def main() -> int:
         "|---|---|---|---|---|---|---|",
         *rows,
     ])
-    return publish({"variant": args.variant, "runs": runs}, body, json_name="segmenter.json", block="segmenter-table", readme=not args.no_readme)
+    return publish({"variant": args.variant, "runs": runs}, body, json_name="segmenter.json", block="segmenter-table", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

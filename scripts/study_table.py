@@ -1,10 +1,10 @@
-"""Regenerate the README's Monte-Carlo table from `coplanar sim` runs.
+"""Regenerate the Monte-Carlo table (docs/results/study.md) from `coplanar sim` runs.
 
     .venv/bin/python scripts/study_table.py            # runs both sequences (30 runs each)
     .venv/bin/python scripts/study_table.py --no-run   # only rebuild the table from docs/study/
 
-Writes docs/study/sim_{a,b}.json and .png, docs/hessian/*.png (sequence b), and replaces the
-text between the study-table markers in README.md.
+Writes docs/study/sim_{a,b}_{gn,lm}.json and .png, docs/hessian/*.png (sequence b, Gauss-Newton),
+and replaces the text between the study-table markers in docs/results/study.md.
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ import pathlib
 import platform
 import subprocess
 import sys
+
+from results_doc import write_block
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 VARIANTS = ("P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w")
@@ -100,7 +102,7 @@ def table(results: dict[str, dict], solver: str) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--no-run", action="store_true")
+    parser.add_argument("--no-run", action="store_true", help="rebuild the table in docs/results/study.md from docs/study/*.json without running")
     parser.add_argument("--runs", type=int, default=30)
     args = parser.parse_args()
     solvers = ("gn", "lm")
@@ -112,12 +114,8 @@ def main() -> int:
     for solver in solvers:
         results = {s: json.loads((ROOT / "docs" / "study" / f"sim_{s}_{solver}.json").read_text()) for s in ("a", "b")}
         tables.append(table(results, solver))
-    readme = ROOT / "README.md"
-    text = readme.read_text()
-    start, end = "<!-- study-table:start -->", "<!-- study-table:end -->"
-    i, j = text.index(start) + len(start), text.index(end)
     body = "\n\n".join(tables)
-    readme.write_text(text[:i] + "\n" + body + "\n" + text[j:])
+    write_block("study-table", body)
     print(body)
     return 0
 

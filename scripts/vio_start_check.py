@@ -4,10 +4,10 @@
 
     .venv/bin/python scripts/vio_start_check.py [--seeds 0,1,2] [--variants P-wo,PL-w] [--seconds 30]
 
-Writes docs/vio/start_check.json and replaces the vio-start block of README.md. Per run: the
-first initialization (s from the first frame; none by the end), lost frames, restarts of the
-start, re-initializations, the gravity and gyroscope bias errors after the refinement, and the
-ATE (SE(3) alignment) from the initialization on and over all frames.
+Writes docs/vio/start_check.json and replaces the vio-start block of docs/results/vio.md. Per
+run: the first initialization (s from the first frame; none by the end), lost frames, restarts
+of the start, re-initializations, the gravity and gyroscope bias errors after the refinement,
+and the ATE (SE(3) alignment) from the initialization on and over all frames.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from euroc_table import publish  # noqa: E402
+from euroc_table import add_no_doc_option, publish  # noqa: E402
 from vio_table import _f, run_one  # noqa: E402
 
 SPEED = 2.0
@@ -33,7 +33,7 @@ FPS = 20.0  # the rendered scenes' camera rate
 
 
 def row(r: dict, *, seconds: float) -> str:
-    """One README row from a run's record."""
+    """One table row from a run's record."""
     init = r["init_time_s"]
     return (f"| {r['seed']} | {r['scene']} | {r['variant']} | {_f(init, 2) if init is not None else 'not by ' + format(seconds, 'g') + ' s'} | {r['lost_frames']} | "
             f"{r['restarts']} | {r['reinitializations']} | {_f(r['gravity_error_refined_deg'])} | {_f(r['bias_gyro_error_refined_pct'], 1)} | "
@@ -46,8 +46,8 @@ def main() -> int:
     p.add_argument("--scenes", default="room,corridor,boxes")
     p.add_argument("--variants", default="P-wo,PL-w")
     p.add_argument("--seconds", type=float, default=30.0, help="frames from the start that are run (s; at most the 30 s path)")
-    p.add_argument("--no-readme", action="store_true")
-    p.add_argument("--from-json", action="store_true", help="rewrite the README block from docs/vio/start_check.json without running")
+    add_no_doc_option(p, "docs/results/vio.md")
+    p.add_argument("--from-json", action="store_true", help="rewrite the vio-start block of docs/results/vio.md from docs/vio/start_check.json without running")
     args = p.parse_args()
     out = ROOT / "docs" / "vio" / "start_check.json"
     runs: list[dict] = []
@@ -83,7 +83,7 @@ def main() -> int:
         "|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
     ])
-    return publish(None, body, json_name="", block="vio-start", readme=not args.no_readme)
+    return publish(None, body, json_name="", block="vio-start", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

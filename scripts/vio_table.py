@@ -1,14 +1,14 @@
-"""The README's VIO table (the paper's Table II, VIO columns) with the stereo figures of the
-same input beside them: every variant on every rendered scene, run exactly as
+"""The VIO table (docs/results/vio.md; the paper's Table II, VIO columns) with the stereo
+figures of the same input beside them: every variant on every rendered scene, run exactly as
 `coplanar run --mode vio|stereo --scene S --variant V --speed 2 --duration 30` runs them
 (seed 0, one run each).
 
     .venv/bin/python scripts/vio_table.py [--duration 30] [--speed 2] [--scenes room,corridor,boxes]
 
-Writes docs/vio/results.json and replaces the vio-table block of README.md. Per run: ATE over
-all tracked frames with ground truth after SE(3) and Sim(3) alignment (cm), the Sim(3)
-scale error (%), the initialization (time, gravity error, scale error at the alignment),
-lost frames, re-initializations and the mean total time per frame (ms).
+Writes docs/vio/results.json and replaces the vio-table block of docs/results/vio.md. Per run:
+ATE over all tracked frames with ground truth after SE(3) and Sim(3) alignment (cm), the Sim(3)
+scale error (%), the initialization (time, gravity error, scale error at the alignment), lost
+frames, re-initializations and the mean total time per frame (ms).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from app import cli  # noqa: E402
-from euroc_table import publish  # noqa: E402
+from euroc_table import add_no_doc_option, publish  # noqa: E402
 from backend.optim.variant import VARIANTS  # noqa: E402
 
 
@@ -46,7 +46,7 @@ def _f(value: float | None, digits: int = 2) -> str:
 
 
 def row(scene: str, variant: str, vio: dict, stereo: dict) -> str:
-    """One README row from the two runs' metrics.json."""
+    """One table row from the two runs' metrics.json."""
     v = vio["vio"]
     al = v.get("alignment") or {}
     return (
@@ -63,7 +63,7 @@ def main() -> int:
     p.add_argument("--speed", type=float, default=2.0)
     p.add_argument("--scenes", default="room,corridor,boxes")
     p.add_argument("--variants", default=",".join(VARIANTS))
-    p.add_argument("--no-readme", action="store_true")
+    add_no_doc_option(p, "docs/results/vio.md")
     p.add_argument("--from-json", action="store_true", help="rewrite the table from docs/vio/results.json without running")
     p.add_argument("--stereo-from-json", action="store_true", help="run VIO only; the stereo columns from docs/vio/results.json (for a change that leaves the stereo pipeline as it was)")
     args = p.parse_args()
@@ -100,7 +100,7 @@ def main() -> int:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
     ])
-    return publish(None, body, json_name="", block="vio-table", readme=not args.no_readme)
+    return publish(None, body, json_name="", block="vio-table", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The floors of the code (docs/design.md, "Floors"): every import, at module level or inside
+"""The floors of the code (docs/design.md §9): every import, at module level or inside
 a function, goes to the same floor or one below, and no two modules import each other,
 directly or round a longer circle. Read from the source with `ast`, so a lazy import
 counts as much as a top-level one."""
