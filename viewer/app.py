@@ -17,64 +17,45 @@ from __future__ import annotations
 
 import collections
 import copy
-import dataclasses
 import logging
 import queue
 import threading
 import time
 import traceback
 from collections.abc import Callable
+from typing import TypeVar
 
 import numpy as np
 import viser
 
-from backend.export.ply import snapshot_ply_bytes
 from backend.data.source import RenderedTruth, StereoSource
+from backend.export.ply import snapshot_ply_bytes
 from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter, segmenter_kind
 from backend.optim.variant import VARIANT_NAMES, VARIANTS, Variant
-from backend.pipeline.engine import Engine, EndOfSequence
+from backend.pipeline.engine import EndOfSequence, Engine
 from backend.pipeline.snapshot import Snapshot
-from viewer import images, panels
+from viewer import panels
 from viewer.access import AccessSettings
 from viewer.commands import Command, CommandQueue
-from viewer.framing import follow_pose, framing_pose, snapshot_bounds
 from viewer.guard import start_server
 from viewer.history import SnapshotHistory
 from viewer.plots import plots_image
 from viewer.scene import SceneView
+from viewer.settings import ViewerSettings
+from viewer.tabs import TABS, HessianTab, KeyframeTab, PlotsTab, ReportTab, Shown, Tab, VariantsTab
+from viewer.views import CameraViews
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 PROGRESS_DELAY_S = 0.3
 PLOT_DEBOUNCE_S = 0.4  # plots are drawn once updates pause this long
 PLOT_PLAY_PERIOD_S = 1.0  # and while playing, at most this often
-VIEW_SETTLE_S = 1.5  # a view set by the debugger counts as untouched this long (the browser animates to it)
 AB_OFF = "off"
 # The Segmenter menu: the oracle of rendered scenes reads the renderer's plane ids, and says so.
 SEGMENTER_LABELS: dict[SegmenterKind, str] = {
     SegmenterKind.GEOMETRIC: "geometric", SegmenterKind.LEARNED: "learned", SegmenterKind.ORACLE: "oracle (ground truth)",
 }
 SHORTCUTS = "**keys**: space play/pause · → step · shift+← / shift+→ scrub · F frame all"
-
-
-def _has_camera(client: viser.ClientHandle) -> bool:
-    """Whether the tab has reported its camera (viser asserts on reading it before)."""
-    try:
-        client.camera.update_timestamp  # noqa: B018
-    except AssertionError:
-        return False
-    return True
-
-
-@dataclasses.dataclass(frozen=True)
-class ViewerSettings:
-    """`history`: keyframes kept for scrubbing (oldest dropped first). `rate_hz`: default
-    Play rate. `compare`: compute the -wo | -r | -w comparison after each step. `plots`:
-    draw the plots over time (in the background, after each update)."""
-
-    history: int = 500
-    rate_hz: float = 5.0
-    compare: bool = True
-    plots: bool = True
 
 
 class Debugger:
@@ -107,9 +88,6 @@ class Debugger:
         # The A/B run: a second engine on the same input in lockstep (None: off).
         self.engine_b: Engine | None = None
         self.history_b: dict[int, Snapshot] = {}
-        # Per client: the view this debugger last set (None: the user has moved it since,
-        # so it is no longer re-framed as the map grows).
-        self._auto_view: dict[int, tuple[np.ndarray, np.ndarray, float, float] | None] = {}
         self._play_times: collections.deque[float] = collections.deque(maxlen=8)
         self._plot_request: tuple[list[Snapshot], int | None] | None = None
         self._plot_event = threading.Event()
@@ -119,7 +97,8 @@ class Debugger:
         self.plot_updates = 0
         self.scene = SceneView(self.server)
         self._build_gui()
-        self.server.on_client_connect(self._on_connect)
+        self.views = CameraViews(self.server, shown=lambda: self._shown)
+        self.server.on_client_connect(self.views.on_connect)
         self._worker = threading.Thread(target=self._run, name="coplanar-engine", daemon=True)
         self._worker.start()
         self._plotter = threading.Thread(target=self._plot_loop, name="coplanar-plots", daemon=True)
@@ -182,27 +161,19 @@ class Debugger:
             self.export_keyframes = gui.add_button("Download keyframe poses (TUM)")
         gui.add_markdown(SHORTCUTS)
 
+        # The side panel's tabs (viewer/tabs), each owning its controls.
         side = gui.add_panel()
-        with side.add_tab("Keyframe", viser.Icon.PHOTO):
-            self.keyframe_image = gui.add_image(images.blank(), label="left image", format="jpeg", jpeg_quality=90, visible=False)
-            self.tracking_text = gui.add_markdown("no keyframe yet")
-            self.image_legend = gui.add_markdown(images.KEYFRAME_LEGEND, visible=False)
-            self.enlarge_image = gui.add_button("Open the image large")
-        with side.add_tab("Hessian", viser.Icon.GRID_DOTS):
-            self.hessian_legend = gui.add_markdown("no window optimized yet")
-            self.hessian_image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
-            self.compare_box = gui.add_checkbox("Compare -wo | -r | -w", initial_value=self.settings.compare)
-            self.compare_image = gui.add_image(images.blank(), label="newest window under -wo | -r | -w", format="png")
-            self.enlarge_hessian = gui.add_button("Open the Hessians large")
-        with side.add_tab("Variants", viser.Icon.ARROWS_DIFF):
-            self.all_button = gui.add_button("Compute all six at the newest keyframe")
-            self.variants_text = gui.add_markdown("no keyframe yet")
-            self.ab_text = gui.add_markdown("")
-        with side.add_tab("Plots", viser.Icon.CHART_LINE):
-            self.plots_box = gui.add_checkbox("Update plots", initial_value=self.settings.plots)
-            self.plots_image = gui.add_image(images.blank(), label="over the kept keyframes (red line: shown)", format="png")
-        with side.add_tab("Report", viser.Icon.FILE_DESCRIPTION):
-            self.report = gui.add_markdown("")
+        self.tabs: list[Tab] = []
+        for cls in TABS:
+            tab = cls(self, self.settings)
+            with side.add_tab(cls.title, cls.icon):
+                tab.build(gui)
+            self.tabs.append(tab)
+        self.keyframe_tab = self._tab(KeyframeTab)
+        self.hessian_tab = self._tab(HessianTab)
+        self.variants_tab = self._tab(VariantsTab)
+        self.plots_tab = self._tab(PlotsTab)
+        self.report_tab = self._tab(ReportTab)
         side.dock_left()
         side.set_width(560)
         self.side_panel = side
@@ -210,33 +181,32 @@ class Debugger:
 
     def _connect_callbacks(self) -> None:
         gui = self.server.gui
-        self.step_button.on_click(lambda _: self._enqueue(Command.STEP))
-        self.reset_button.on_click(lambda _: self._enqueue(Command.RESET))
-        self.all_button.on_click(lambda _: self._enqueue(Command.ALL_VARIANTS))
+        self.step_button.on_click(lambda _: self.enqueue(Command.STEP))
+        self.reset_button.on_click(lambda _: self.enqueue(Command.RESET))
 
         @self.variant.on_update
         def _(event: viser.GuiEvent) -> None:
             if event.client is not None:
-                self._enqueue(Command.VARIANT, Variant.parse(self.variant.value))
+                self.enqueue(Command.VARIANT, Variant.parse(self.variant.value))
 
         if self.segmenter is not None:
             @self.segmenter.on_update
             def _(event: viser.GuiEvent) -> None:
                 if event.client is not None:
                     kind = next(k for k, label in SEGMENTER_LABELS.items() if label == self.segmenter.value)
-                    self._enqueue(Command.SEGMENTER, kind)
+                    self.enqueue(Command.SEGMENTER, kind)
 
         @self.ab_variant.on_update
         def _(event: viser.GuiEvent) -> None:
             if event.client is not None:
-                self._enqueue(Command.AB, self.ab_variant.value)
+                self.enqueue(Command.AB, self.ab_variant.value)
 
         @self.play.on_update
         def _(event: viser.GuiEvent) -> None:
             if self.play.value:
                 self._play_times.clear()
                 self._playing.set()
-                self._enqueue(Command.WAKE)
+                self.enqueue(Command.WAKE)
             else:
                 self._playing.clear()
                 self.achieved.value = "–"
@@ -246,7 +216,7 @@ class Debugger:
             if event.client is not None:  # a user scrubs: stop playing, or the next step jumps back
                 if self.play.value:
                     self.play.value = False
-                self._enqueue(Command.SHOW, int(self.slider.value))
+                self.enqueue(Command.SHOW, int(self.slider.value))
 
         for name, box in self.layer_boxes.items():
             box.on_update(self._layer_callback(name, box))
@@ -256,25 +226,24 @@ class Debugger:
             with self.server.atomic():
                 self.scene.set_point_scale(float(self.point_scale.value))
 
-        self.frame_button.on_click(lambda event: self._frame(event.client, keep_direction=True))
-        self.reset_view_button.on_click(lambda event: self._frame(event.client, keep_direction=False))
+        self.frame_button.on_click(lambda event: self.views.frame(event.client, keep_direction=True))
+        self.reset_view_button.on_click(lambda event: self.views.frame(event.client, keep_direction=False))
         self.export_button.on_click(lambda event: self._export(event.client, "map"))
         if self.dense is not None:
             self.dense_box.on_update(lambda _: self.dense.set_enabled(self.dense_box.value, self._shown))
         self.export_files.on_click(lambda event: self._export(event.client, "files"))
         self.export_trajectory.on_click(lambda event: self._export(event.client, "trajectory"))
         self.export_keyframes.on_click(lambda event: self._export(event.client, "keyframes"))
-        self.compare_box.on_update(lambda _: self._enqueue(Command.COMPARE))
-        self.enlarge_image.on_click(lambda event: self._enlarge(event.client, "keyframe"))
-        self.enlarge_hessian.on_click(lambda event: self._enlarge(event.client, "hessian"))
-        self.plots_box.on_update(lambda _: self._request_plots())
 
         # Keyboard shortcuts (viser's command palette binds them for every tab).
         gui.add_command("Play / pause", hotkey="space").on_trigger(lambda _: setattr(self.play, "value", not self.play.value))
-        gui.add_command("Step", hotkey="arrowright").on_trigger(lambda _: self._enqueue(Command.STEP))
+        gui.add_command("Step", hotkey="arrowright").on_trigger(lambda _: self.enqueue(Command.STEP))
         gui.add_command("Scrub back", hotkey="arrowleft", modifier="shift").on_trigger(lambda _: self._scrub(-1))
         gui.add_command("Scrub forward", hotkey="arrowright", modifier="shift").on_trigger(lambda _: self._scrub(+1))
-        gui.add_command("Frame all", hotkey="F").on_trigger(lambda event: self._frame(event.client, keep_direction=True))
+        gui.add_command("Frame all", hotkey="F").on_trigger(lambda event: self.views.frame(event.client, keep_direction=True))
+
+    def _tab(self, cls: type[T]) -> T:
+        return next(t for t in self.tabs if isinstance(t, cls))
 
     def _layer_callback(self, name: str, box: viser.GuiCheckboxHandle) -> Callable[[viser.GuiEvent], None]:
         def callback(_: viser.GuiEvent) -> None:
@@ -290,7 +259,7 @@ class Debugger:
             self.play.value = False
         value = int(np.clip(int(self.slider.value) + delta, self.slider.min, self.slider.max))
         self.slider.value = value
-        self._enqueue(Command.SHOW, value)
+        self.enqueue(Command.SHOW, value)
 
     # ------------------------------------------------------------------ status
 
@@ -479,7 +448,7 @@ class Debugger:
         self.history_b = {}
         if self.ab_variant.value != AB_OFF:
             self.ab_variant.value = AB_OFF
-        self.ab_text.content = f"*{why}*"
+        self.variants_tab.note_ab(f"*{why}*")
 
     def _set_segmenter(self, kind: SegmenterKind) -> None:
         """Plane instances from the next keyframe on: stereo disparity, the network, or on
@@ -506,20 +475,13 @@ class Debugger:
         self._states_keyframe = None
         self._states = {}
         self._shown = None
-        self._auto_view = {}
+        self.views.forget()
         with self.server.atomic():
             self.scene.clear()
             self.slider.disabled = True
             self.keyframe_label.value = "none"
-            self.keyframe_image.image = images.blank()
-            self.keyframe_image.visible = self.image_legend.visible = False
-            self.tracking_text.content = "no keyframe yet"
-            self.hessian_image.image = images.blank()
-            self.hessian_legend.content = "no window optimized yet"
-            self.compare_image.image = images.blank()
-            self.variants_text.content = "no keyframe yet"
-            self.plots_image.image = images.blank()
-            self.report.content = ""
+            for tab in self.tabs:
+                tab.clear()
             self.layer_note.content = ""
             self.achieved.value = "–"
         self._idle()
@@ -557,46 +519,30 @@ class Debugger:
             self.keyframe_label.value = f"{snapshot.keyframe} ({snapshot.variant})"
         self.server.flush()
         self._shown = snapshot
-        self._update_views(snapshot)
+        self.views.update(snapshot, follow=bool(self.follow.value))
         with self.server.atomic():
             if self.variant.value != snapshot.variant:
                 self.variant.value = snapshot.variant
-            if snapshot.image is not None:
-                self.keyframe_image.image = images.keyframe_image(snapshot.image)
-                self.keyframe_image.label = f"keyframe {snapshot.keyframe}: left image"
-                self.tracking_text.content = images.tracking_markdown(snapshot.tracking)
-            else:
-                self.tracking_text.content = f"*{self.engine.source}: no image for this keyframe*"
-            if self.keyframe_image.visible != (snapshot.image is not None):
-                self.keyframe_image.visible = self.image_legend.visible = snapshot.image is not None
-            if snapshot.hessian is not None:
-                self.hessian_image.image = images.hessian_image(snapshot.hessian)
-                self.hessian_legend.content = images.legend_markdown(snapshot.hessian)
-            self.report.content = panels.report_markdown(snapshot)
-            self.variants_text.content = panels.variants_markdown(self.history.variants_at(snapshot.keyframe), shown=snapshot)
-            self.ab_text.content = panels.ab_markdown(snapshot, other) if self.engine_b is not None else ""
+            shown = Shown(snapshot, variants=self.history.variants_at(snapshot.keyframe), other=other, ab_on=self.engine_b is not None, source=self.engine.source)
+            for tab in self.tabs:
+                tab.show(shown)
             self.layer_note.content = (
                 f"*{snapshot.variant}: planes are detected and drawn faint for reference; this variant's optimizer does not use them*"
                 if not snapshot.variant.uses_planes else ""
             )
         self.server.flush()
-        self._request_plots()
+        self.request_plots()
         if self.dense is not None:
             self.dense.request(snapshot)
 
     def _update_compare(self) -> None:
-        self.compare_image.visible = bool(self.compare_box.value)
-        if not self.compare_box.value or not self.history:
-            return
-        structures = self.engine.compare_hessians(self.engine.variant.family())
-        if structures:
-            self.compare_image.image = images.compare_image(structures)
+        self.hessian_tab.update_compare(self.engine, has_keyframes=bool(self.history))
 
     # ------------------------------------------------------------------ plots
 
-    def _request_plots(self) -> None:
+    def request_plots(self) -> None:
         """Ask the plot thread for the plots of what is shown (the newest request wins)."""
-        if not self.plots_box.value or self._shown is None:
+        if not self.plots_tab.box.value or self._shown is None:
             return
         self._plot_request = (self.history.series(self._shown.variant), self._shown.keyframe)
         self._plot_event.set()
@@ -621,7 +567,7 @@ class Debugger:
             request, self._plot_request = self._plot_request, None
             try:
                 if request is not None and request[0]:
-                    self.plots_image.image = plots_image(request[0], current=request[1])
+                    self.plots_tab.image.image = plots_image(request[0], current=request[1])
                     self.plot_updates += 1
             except Exception:  # a plot must never stop the debugger
                 log.error("plot error:\n%s", traceback.format_exc())
@@ -637,112 +583,7 @@ class Debugger:
                 raise TimeoutError("the plots were not drawn")
             time.sleep(0.01)
 
-    # ------------------------------------------------------------------ camera
-
-    def _on_connect(self, client: viser.ClientHandle) -> None:
-        """Frame a new tab's view as soon as it reports its camera (its canvas size is
-        needed); a tab that connects before the first keyframe is framed with it."""
-
-        def on_camera(cam: viser.CameraHandle) -> None:
-            if self._shown is None:
-                return
-            last = self._auto_view.get(client.client_id, "never")
-            if isinstance(last, str):
-                self._frame(client, keep_direction=False)
-            elif last is not None and abs(float(cam.aspect) - last[3]) > 0.02 and self._view_unchanged(client, last):
-                self._frame(client, keep_direction=False)  # the canvas changed size (panels docked, window resized)
-
-        client.camera.on_update(on_camera)
-
-    def _update_views(self, snapshot: Snapshot) -> None:
-        """Views that the user has not moved keep framing the map as it grows; with
-        *Follow keyframe*, every view keeps its offset to the newest keyframe."""
-        position, look_at = framing_pose(snapshot_bounds(snapshot), fov_y=float(self.server.initial_camera.fov), aspect=1.2)
-        self.server.initial_camera.position = position  # also viser's own "reset view"
-        self.server.initial_camera.look_at = look_at
-        for client_id, client in self.server.get_clients().items():
-            try:
-                self._update_view(client_id, client, snapshot)
-            except Exception as e:  # noqa: BLE001 - one tab's view must never stop the step for every tab
-                log.warning("view of client %s not updated: %s: %s", client_id, type(e).__name__, e)
-
-    def _update_view(self, client_id: int, client: viser.ClientHandle, snapshot: Snapshot) -> None:
-        if not _has_camera(client):
-            return  # no camera reported yet: framed when it is (_on_connect)
-        if self.follow.value:
-            self._follow(client, snapshot)
-            return
-        last = self._auto_view.get(client_id, "never")
-        if isinstance(last, str) or (last is not None and self._view_unchanged(client, last)):
-            self._frame(client, keep_direction=False)
-        else:
-            self._auto_view[client_id] = None
-
-    @staticmethod
-    def _view_unchanged(client: viser.ClientHandle, view: tuple[np.ndarray, np.ndarray, float, float]) -> bool:
-        """The client's view is the one set last, or the browser may still be animating
-        towards it (its camera moves smoothly for about a second)."""
-        cam = client.camera
-        if time.monotonic() - view[2] < VIEW_SETTLE_S:
-            return True
-        return bool(np.allclose(cam.position, view[0], atol=1e-3) and np.allclose(cam.look_at, view[1], atol=1e-3))
-
-    def _frame(self, client: viser.ClientHandle | None, *, keep_direction: bool) -> tuple[np.ndarray, np.ndarray] | None:
-        """Frame the shown map in `client`'s view (along its current direction, or the
-        default one); returns the view set. The view then follows the growing map again
-        until the user moves it."""
-        snapshot = self._shown
-        if client is None or snapshot is None:
-            return None
-        if not _has_camera(client):  # framed once it reports its camera (_on_connect)
-            return None
-        cam = client.camera
-        fov, aspect = float(cam.fov), float(cam.aspect)
-        kwargs = {}
-        if keep_direction:
-            direction = np.asarray(cam.position, float) - np.asarray(cam.look_at, float)
-            if np.linalg.norm(direction) > 1e-9:
-                kwargs["direction"] = direction
-        position, look_at = framing_pose(snapshot_bounds(snapshot), fov_y=fov, aspect=aspect, **kwargs)
-        with client.atomic():  # position first: viser moves look_at along with it
-            cam.position = position
-            cam.look_at = look_at
-        self._auto_view[client.client_id] = (position, look_at, time.monotonic(), aspect)
-        return position, look_at
-
-    @staticmethod
-    def _follow(client: viser.ClientHandle, snapshot: Snapshot) -> None:
-        cam = client.camera
-        position, look_at = follow_pose(cam.position, cam.look_at, snapshot.estimate.t_world_camera[-1])
-        with client.atomic():  # position first: viser moves look_at along with it
-            cam.position = position
-            cam.look_at = look_at
-
     # ------------------------------------------------------------------ large views
-
-    def _enlarge(self, client: viser.ClientHandle | None, what: str) -> None:
-        """A floating window (for the clicking tab only) with the keyframe image, or the
-        Hessian and the -wo | -r | -w comparison, at their full size; Close removes it."""
-        if client is None:
-            return
-        if what == "keyframe":
-            if not self.keyframe_image.visible:
-                client.add_notification("No keyframe image", "This engine's snapshots have no image.", auto_close_seconds=5.0)
-                return
-            pictures = [(self.keyframe_image.label or "keyframe image", self.keyframe_image.image)]
-        else:
-            pictures = [("H = JᵀJ of the window", self.hessian_image.image), ("the newest window under -wo | -r | -w", self.compare_image.image)]
-        panel = client.gui.add_panel()
-        with panel.add_tab("Large view", viser.Icon.ZOOM_IN):
-            for label, picture in pictures:
-                if what == "hessian":
-                    client.gui.add_image(picture, label=label, format="png")
-                else:
-                    client.gui.add_image(picture, label=label, format="jpeg", jpeg_quality=95)
-            close = client.gui.add_button("Close")
-        close.on_click(lambda _: panel.remove())
-        width = max(int(np.asarray(pictures[0][1]).shape[1]), 600)
-        panel.float(x=20, y=20, width=width + 40)
 
     # ------------------------------------------------------------------ export
 
@@ -784,7 +625,7 @@ class Debugger:
         unlike the GUI's, submitted commands do not coalesce: each one runs."""
         self._commands.put(command, arg)
 
-    def _enqueue(self, command: Command, arg: object = None) -> None:
+    def enqueue(self, command: Command, arg: object = None) -> None:
         """Queue a command from a browser: a burst coalesces (viewer/commands.py)."""
         self._commands.put(command, arg, coalesce=True)
 

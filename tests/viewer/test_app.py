@@ -97,29 +97,29 @@ def _green_column(rgb: np.ndarray) -> int:
 
 def test_keyframe_image_is_shown_and_follows_scrubbing(image_debugger) -> None:  # noqa: ANN001
     d = image_debugger
-    assert not d.keyframe_image.visible  # nothing shown yet
+    assert not d.keyframe_tab.image.visible  # nothing shown yet
     for _ in range(3):
         d.submit("step")
     d.wait_idle()
     newest = d.history[-1]
     assert newest.keyframe == 2 and newest.image is not None
-    assert d.keyframe_image.visible
-    shown = d.keyframe_image.image
+    assert d.keyframe_tab.image.visible
+    shown = d.keyframe_tab.image.image
     assert shown.shape == (H, W, 3)
     np.testing.assert_array_equal(shown, decode_keyframe_image(newest.image))
     assert _green_column(shown) == 30
-    assert "2 lost" in d.tracking_text.content and "302 points" in d.tracking_text.content
+    assert "2 lost" in d.keyframe_tab.tracking_text.content and "302 points" in d.keyframe_tab.tracking_text.content
     assert "tracking lost at frame 2: re-initialized" in d.status.content
-    assert "tracking lost at frame 2: re-initialized" in d.report.content
+    assert "tracking lost at frame 2: re-initialized" in d.report_tab.markdown.content
 
     # Scrubbing back shows the older snapshot's image and message.
     d.submit("show", 0)
     d.wait_idle()
-    assert d.keyframe_image.visible
-    np.testing.assert_array_equal(d.keyframe_image.image, decode_keyframe_image(d.history[0].image))
-    assert _green_column(d.keyframe_image.image) == 10
-    assert "0 lost" in d.tracking_text.content
-    assert "tracking lost at frame 0" in d.report.content
+    assert d.keyframe_tab.image.visible
+    np.testing.assert_array_equal(d.keyframe_tab.image.image, decode_keyframe_image(d.history[0].image))
+    assert _green_column(d.keyframe_tab.image.image) == 10
+    assert "0 lost" in d.keyframe_tab.tracking_text.content
+    assert "tracking lost at frame 0" in d.report_tab.markdown.content
 
 
 def test_keyframe_image_is_hidden_for_the_monte_carlo_engine(sim_debugger) -> None:  # noqa: ANN001
@@ -127,20 +127,20 @@ def test_keyframe_image_is_hidden_for_the_monte_carlo_engine(sim_debugger) -> No
     d.submit("step")
     d.wait_idle()
     assert d.history[-1].image is None and d.history[-1].tracking is None
-    assert not d.keyframe_image.visible
-    assert "**tracking**" not in d.report.content
+    assert not d.keyframe_tab.image.visible
+    assert "**tracking**" not in d.report_tab.markdown.content
 
 
 def test_keyframe_image_hides_again_for_a_snapshot_without_one(image_debugger) -> None:  # noqa: ANN001
     d = image_debugger
     d.submit("step")
     d.wait_idle()
-    assert d.keyframe_image.visible
+    assert d.keyframe_tab.image.visible
     # A later snapshot without an image (e.g. from another engine) hides the panel.
     plain = dataclasses.replace(d.history[-1], image=None, tracking=None, message="")
     d._show(plain)
-    assert not d.keyframe_image.visible
-    assert "tracking lost" not in d.report.content
+    assert not d.keyframe_tab.image.visible
+    assert "tracking lost" not in d.report_tab.markdown.content
 
 
 def test_switching_variants_keeps_each_result_and_returns_to_it(sim_debugger) -> None:  # noqa: ANN001
@@ -168,7 +168,7 @@ def test_switching_variants_keeps_each_result_and_returns_to_it(sim_debugger) ->
     assert set(d.history.variants_at(k)) == set(VARIANTS)
     # The same start for every variant of one family: the state the step left.
     assert initial_costs["P-wo"] == pytest.approx(initial_costs["P-r"], rel=0.2)
-    assert "P-wo" in d.variants_text.content and "◀ shown" in d.variants_text.content
+    assert "P-wo" in d.variants_tab.text.content and "◀ shown" in d.variants_tab.text.content
     # Step on with PL-r, scrub back: keyframe k shows PL-r's snapshot from before.
     d.submit("variant", "PL-r")
     d.submit("step")
@@ -214,13 +214,13 @@ def test_reset_clears_what_is_shown(image_debugger) -> None:  # noqa: ANN001
     for _ in range(3):
         d.submit("step")
     d.wait_idle()
-    assert d.scene._handles and d.keyframe_image.visible and d.report.content
+    assert d.scene._handles and d.keyframe_tab.image.visible and d.report_tab.markdown.content
     d.submit("reset")
     d.wait_idle()
     assert d.shown is None and not d.history
     assert d.scene._handles == {}
     assert d.keyframe_label.value == "none"
-    assert not d.keyframe_image.visible and d.report.content == "" and d.variants_text.content == "no keyframe yet"
+    assert not d.keyframe_tab.image.visible and d.report_tab.markdown.content == "" and d.variants_tab.text.content == "no keyframe yet"
     assert d.slider.disabled
     assert "reset, press Step or Play" in d.status.content
 
@@ -237,7 +237,7 @@ def test_ab_run_steps_both_engines_and_reports_the_difference(sim_debugger) -> N
     assert a.variant == "PL-w" and b.variant == "P-wo" and a.keyframe == b.keyframe == 4
     assert d.engine_b.keyframes == d.engine.keyframes == 5
     assert "/ab/trajectory" in d.scene._handles
-    assert "A: PL-w" in d.ab_text.content and "B: P-wo" in d.ab_text.content and "same frame" in d.ab_text.content
+    assert "A: PL-w" in d.variants_tab.ab_text.content and "B: P-wo" in d.variants_tab.ab_text.content and "same frame" in d.variants_tab.ab_text.content
     d.submit("ab", "off")
     d.wait_idle()
     assert d.engine_b is None and "/ab/trajectory" not in d.scene._handles
@@ -251,7 +251,7 @@ def test_plots_follow_the_shown_keyframe(sim_debugger) -> None:  # noqa: ANN001
 
     def settled() -> np.ndarray:
         d.wait_plots()
-        return np.asarray(d.plots_image.image).copy()
+        return np.asarray(d.plots_tab.image.image).copy()
 
     newest = settled()
     assert newest.shape[0] > 300 and d.plot_updates >= 1

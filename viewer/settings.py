@@ -1,0 +1,17 @@
+"""The debugger's settings."""
+
+from __future__ import annotations
+
+import dataclasses
+
+
+@dataclasses.dataclass(frozen=True)
+class ViewerSettings:
+    """`history`: keyframes kept for scrubbing (oldest dropped first). `rate_hz`: default
+    Play rate. `compare`: compute the -wo | -r | -w comparison after each step. `plots`:
+    draw the plots over time (in the background, after each update)."""
+
+    history: int = 500
+    rate_hz: float = 5.0
+    compare: bool = True
+    plots: bool = True
