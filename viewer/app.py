@@ -16,7 +16,6 @@ variants at this keyframe, plots over time, report). The 3D view lies between th
 from __future__ import annotations
 
 import collections
-import copy
 import logging
 import queue
 import threading
@@ -29,27 +28,25 @@ import numpy as np
 import viser
 
 from backend.data.source import RenderedTruth, StereoSource
-from backend.export.ply import snapshot_ply_bytes
 from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter, segmenter_kind
-from backend.optim.variant import VARIANT_NAMES, VARIANTS, Variant
+from backend.optim.variant import VARIANT_NAMES, Variant
 from backend.pipeline.engine import EndOfSequence, Engine
 from backend.pipeline.snapshot import Snapshot
-from viewer import panels
 from viewer.access import AccessSettings
 from viewer.commands import Command, CommandQueue
+from viewer.exports import export
 from viewer.guard import start_server
 from viewer.history import SnapshotHistory
-from viewer.plots import plots_image
 from viewer.scene import SceneView
+from viewer.session import Session
 from viewer.settings import ViewerSettings
+from viewer.status import StatusLine
 from viewer.tabs import TABS, HessianTab, KeyframeTab, PlotsTab, ReportTab, Shown, Tab, VariantsTab
+from viewer.tabs.plots import PlotDrawer
 from viewer.views import CameraViews
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
-PROGRESS_DELAY_S = 0.3
-PLOT_DEBOUNCE_S = 0.4  # plots are drawn once updates pause this long
-PLOT_PLAY_PERIOD_S = 1.0  # and while playing, at most this often
 AB_OFF = "off"
 # The Segmenter menu: the oracle of rendered scenes reads the renderer's plane ids, and says so.
 SEGMENTER_LABELS: dict[SegmenterKind, str] = {
@@ -71,38 +68,22 @@ class Debugger:
         # it, with checked values (viewer/guard.py).
         self.server, self.guard = start_server(host=host, port=port, access=access, label="coplanar")
         self.port = self.server.get_port()
-        self.history = SnapshotHistory(settings.history)
+        self.session = Session(engine, keep=settings.history)
         self._shown: Snapshot | None = None
         self._commands = CommandQueue()
         self._playing = threading.Event()
         self._stopped = threading.Event()
-        self.busy = threading.Event()
-        self._status_lock = threading.Lock()
-        self._busy_token: object | None = None
-        self._progress_timer: threading.Timer | None = None
         self.steps_done = 0
-        # Engine checkpoints at the newest keyframe: after its step ("base") and after
-        # each variant's re-optimization there.
-        self._states_keyframe: int | None = None
-        self._states: dict[str, object] = {}
-        # The A/B run: a second engine on the same input in lockstep (None: off).
-        self.engine_b: Engine | None = None
-        self.history_b: dict[int, Snapshot] = {}
         self._play_times: collections.deque[float] = collections.deque(maxlen=8)
-        self._plot_request: tuple[list[Snapshot], int | None] | None = None
-        self._plot_event = threading.Event()
         self._working = threading.Event()  # the worker is running a command
-        self._plot_drawing = threading.Event()
         self._worked_at = 0.0
-        self.plot_updates = 0
         self.scene = SceneView(self.server)
         self._build_gui()
         self.views = CameraViews(self.server, shown=lambda: self._shown)
         self.server.on_client_connect(self.views.on_connect)
         self._worker = threading.Thread(target=self._run, name="coplanar-engine", daemon=True)
         self._worker.start()
-        self._plotter = threading.Thread(target=self._plot_loop, name="coplanar-plots", daemon=True)
-        self._plotter.start()
+        self.plots = PlotDrawer(self.plots_tab.image, working=self._working, playing=self._playing, worked_at=lambda: self._worked_at)
 
     # ------------------------------------------------------------------ GUI
 
@@ -129,6 +110,8 @@ class Debugger:
             self.keyframe_label = gui.add_text("Shown", initial_value="none", disabled=True)
             # Last in the folder, so that showing it moves nothing a user clicks.
             self.progress = gui.add_progress_bar(100.0, animated=True, visible=False)
+        self.status_line = StatusLine(self.status, self.progress)
+        self.busy = self.status_line.busy
         with gui.add_folder("A/B run"):
             self.ab_variant = gui.add_dropdown("B variant", (AB_OFF, *VARIANT_NAMES), initial_value=AB_OFF)
             self.ab_note = gui.add_markdown("A second engine runs the same input in lockstep from the state shown when B is chosen; its trajectory and newest camera are drawn in magenta, the differences are in the *Variants* tab.")
@@ -264,38 +247,13 @@ class Debugger:
     # ------------------------------------------------------------------ status
 
     def _set_status(self, text: str) -> None:
-        """Write the status line; a pending progress message can no longer overwrite it."""
-        with self._status_lock:
-            self._busy_token = None
-            self.status.content = text
+        self.status_line.set(text)
 
     def _busy(self, text: str) -> None:
-        """Mark the worker busy; `text` and the progress bar appear only if the work takes
-        longer than PROGRESS_DELAY_S (a quick step should not repaint the panel twice)."""
-        self.busy.set()
-        token = object()
-        with self._status_lock:
-            self._busy_token = token
-
-        def show() -> None:
-            with self._status_lock:
-                if self._busy_token is token:
-                    self.status.content = text
-                    self.progress.visible = True
-
-        self._progress_timer = threading.Timer(PROGRESS_DELAY_S, show)
-        self._progress_timer.daemon = True
-        self._progress_timer.start()
+        self.status_line.working(text)
 
     def _idle(self) -> None:
-        self.busy.clear()
-        with self._status_lock:
-            self._busy_token = None
-        if self._progress_timer is not None:
-            self._progress_timer.cancel()
-            self._progress_timer = None
-        if self.progress.visible:
-            self.progress.visible = False
+        self.status_line.done()
 
     # ------------------------------------------------------------------ worker
 
@@ -347,64 +305,44 @@ class Debugger:
         elif command is Command.SEGMENTER:
             self._set_segmenter(SegmenterKind(arg))  # type: ignore[arg-type]
 
+    @property
+    def history(self) -> SnapshotHistory:
+        """Snapshots per keyframe and variant (the session's)."""
+        return self.session.history
+
+    @property
+    def engine_b(self) -> Engine | None:
+        """The A/B run's second engine (None: off)."""
+        return self.session.engine_b
+
+    @property
+    def history_b(self) -> dict[int, Snapshot]:
+        return self.session.history_b
+
     def _step(self) -> None:
         self._busy(f"stepping: keyframe {self.history.newest_keyframe + 1 if self.history else 0} …")
         try:
-            snapshot = self.engine.step()
+            stepped = self.session.step()
         except EndOfSequence as end:
             self._playing.clear()
             self.play.value = False
             self._idle()
             self._set_status(f"**end of sequence**: {end}")
             return
-        other = None
-        if self.engine_b is not None:
-            try:
-                other = self.engine_b.step()
-                self._keep_b(other)
-            except EndOfSequence:
-                self._stop_ab("B reached the end of the sequence")
+        if stepped.b_stopped:
+            self._ab_stopped(stepped.b_stopped)
         self.steps_done += 1
-        self._states_keyframe = None
-        self._states = {}
         if self._playing.is_set():
             self._play_times.append(time.perf_counter())
-        self.history.add_step(snapshot)
-        self._publish(snapshot)
-
-    def _keep_b(self, snapshot: Snapshot) -> None:
-        self.history_b[snapshot.keyframe] = snapshot
-        while len(self.history_b) > self.settings.history:
-            self.history_b.pop(next(iter(self.history_b)))
+        self._publish(stepped.snapshot)
 
     def _switch_variant(self, name: Variant) -> None:
         """Show `name` at the newest keyframe: its kept result, or the window re-optimized
         with it from the state the step left."""
-        if not self.history:
-            self.engine.set_variant(name)
+        snapshot = self.session.switch_variant(name, busy=self._busy)
+        if snapshot is None:
             self._set_status(f"variant {name}: used from the first step")
             return
-        k = self.history.newest_keyframe
-        has_states = hasattr(self.engine, "checkpoint")
-        if has_states and self._states_keyframe != k:
-            self._states_keyframe = k
-            base = self.engine.checkpoint()  # restore() copies it again, so one serves both
-            self._states = {"base": base, self.engine.variant: base}
-        kept = self.history.variants_at(k).get(name)
-        if has_states and kept is not None and name in self._states:
-            self.engine.restore(self._states[name])
-            self.engine.set_variant(name)
-            self.history.choose(k, name)
-            self._publish(kept)
-            return
-        self._busy(f"re-optimizing the window with {name} …")
-        if has_states:
-            self.engine.restore(self._states["base"])
-        self.engine.set_variant(name)
-        snapshot = self.engine.reoptimize()
-        if has_states:
-            self._states[name] = self.engine.checkpoint()
-        self.history.add_variant(snapshot)
         self._publish(snapshot)
 
     def _all_variants(self) -> None:
@@ -413,39 +351,33 @@ class Debugger:
             self._set_status("no keyframe yet: press Step first")
             return
         selected = self.engine.variant
-        for name in VARIANTS:
-            if name not in self.history.variants_at(self.history.newest_keyframe):
-                self._switch_variant(name)
+        for name in self.session.missing_variants():
+            self._switch_variant(name)
         self._switch_variant(selected)
 
     def _set_ab(self, name: str) -> None:
         if name == AB_OFF:
-            self._stop_ab("A/B run off")
+            self.session.stop_ab()
+            self._ab_stopped("A/B run off")
             if self._shown is not None:
                 self._show(self._shown)
             return
         variant = Variant.parse(name)
-        if not hasattr(self.engine, "checkpoint"):  # a copy would share the engine's state
-            self._stop_ab(f"{self.engine.source}: this engine cannot be copied for an A/B run")
+        if not self.session.can_checkpoint:  # a copy would share the engine's state
+            self.session.stop_ab()
+            self._ab_stopped(f"{self.engine.source}: this engine cannot be copied for an A/B run")
             self._set_status(f"**A/B run**: {self.engine.source} cannot be copied (no checkpoint)")
             return
         self._busy(f"starting the A/B run with {name} …")
-        engine_b = copy.copy(self.engine)
-        engine_b.restore(self.engine.checkpoint())
-        engine_b.set_variant(variant)
-        self.engine_b = engine_b
+        self.session.start_ab(variant)
         if self.ab_variant.value != name:
             self.ab_variant.value = name
-        self.history_b = {}
-        if self.history:
-            self._keep_b(engine_b.reoptimize())
         self._set_status(f"A/B run: B = {name}, started at keyframe {self.history.newest_keyframe if self.history else 0}; press Step")
         if self._shown is not None:
             self._show(self._shown)
 
-    def _stop_ab(self, why: str) -> None:
-        self.engine_b = None
-        self.history_b = {}
+    def _ab_stopped(self, why: str) -> None:
+        """The A/B run has stopped (the session says so): its menu off and why."""
         if self.ab_variant.value != AB_OFF:
             self.ab_variant.value = AB_OFF
         self.variants_tab.note_ab(f"*{why}*")
@@ -467,13 +399,10 @@ class Debugger:
 
     def _reset(self) -> None:
         self._busy("resetting …")
-        self.engine.reset()
+        self.session.reset()
         if self.dense is not None:
             self.dense.clear()
-        self.history.clear()
-        self._stop_ab("A/B run off (reset)")
-        self._states_keyframe = None
-        self._states = {}
+        self._ab_stopped("A/B run off (reset)")
         self._shown = None
         self.views.forget()
         with self.server.atomic():
@@ -513,7 +442,7 @@ class Debugger:
     def _show(self, snapshot: Snapshot) -> None:
         """Draw a snapshot: the scene first (its label last, so a client that sees the label
         has the whole scene), then the panels, which cost more to encode."""
-        other = self.history_b.get(snapshot.keyframe) if self.engine_b is not None else None
+        other = self.session.other_at(snapshot.keyframe)
         with self.server.atomic():
             self.scene.draw(snapshot, other=other)
             self.keyframe_label.value = f"{snapshot.keyframe} ({snapshot.variant})"
@@ -544,44 +473,15 @@ class Debugger:
         """Ask the plot thread for the plots of what is shown (the newest request wins)."""
         if not self.plots_tab.box.value or self._shown is None:
             return
-        self._plot_request = (self.history.series(self._shown.variant), self._shown.keyframe)
-        self._plot_event.set()
+        self.plots.request(self.history.series(self._shown.variant), self._shown.keyframe)
 
-    def _plot_loop(self) -> None:
-        """Draw the plots off the engine's thread while it waits: once it has been idle
-        for PLOT_DEBOUNCE_S (drawing takes about 150 ms of a shared CPU and must not slow
-        a burst of steps or scrubbing), and while playing between two steps at most every
-        PLOT_PLAY_PERIOD_S."""
-        last_draw = 0.0
-        while not self._stopped.is_set():
-            if not self._plot_event.wait(timeout=0.5):
-                continue
-            now = time.monotonic()
-            idle = not self._working.is_set() and now - self._worked_at >= PLOT_DEBOUNCE_S
-            due = self._playing.is_set() and not self._working.is_set() and now - last_draw >= PLOT_PLAY_PERIOD_S
-            if not (idle or due):
-                time.sleep(0.05)
-                continue
-            self._plot_drawing.set()
-            self._plot_event.clear()
-            request, self._plot_request = self._plot_request, None
-            try:
-                if request is not None and request[0]:
-                    self.plots_tab.image.image = plots_image(request[0], current=request[1])
-                    self.plot_updates += 1
-            except Exception:  # a plot must never stop the debugger
-                log.error("plot error:\n%s", traceback.format_exc())
-            finally:
-                self._plot_drawing.clear()
-            last_draw = time.monotonic()
+    @property
+    def plot_updates(self) -> int:
+        return self.plots.updates
 
     def wait_plots(self, timeout: float = 30.0) -> None:
         """Block until the plots show the latest request (for tests and benchmarks)."""
-        deadline = time.monotonic() + timeout
-        while self._plot_request is not None or self._plot_event.is_set() or self._plot_drawing.is_set():
-            if time.monotonic() > deadline:
-                raise TimeoutError("the plots were not drawn")
-            time.sleep(0.01)
+        self.plots.wait(timeout)
 
     # ------------------------------------------------------------------ large views
 
@@ -589,34 +489,8 @@ class Debugger:
 
     def _export(self, client: viser.ClientHandle | None, what: str) -> None:
         snapshot = self._shown
-        if client is None:
-            return
-        if snapshot is None:
-            client.add_notification("Nothing to export", "No keyframe is shown yet: press Step first.", auto_close_seconds=5.0, color="yellow")
-            return
-        stem = f"coplanar_kf{snapshot.keyframe:05d}_{snapshot.variant}"
-        if what == "map":
-            client.send_file_download(f"coplanar_map_kf{snapshot.keyframe:05d}_{snapshot.variant}.ply", snapshot_ply_bytes(snapshot), save_immediately=True)
-        elif what == "files":
-            from backend.common.optional import MissingLibraryError
-            from backend.export.map_files import map_files_zip
-
-            try:
-                data = map_files_zip(snapshot)
-            except MissingLibraryError as e:
-                client.add_notification("Export needs open3d", str(e), auto_close_seconds=10.0, color="red")
-                return
-            client.send_file_download(f"coplanar_map_kf{snapshot.keyframe:05d}_{snapshot.variant}.zip", data, save_immediately=True)
-        elif what == "keyframes":
-            client.send_file_download(f"{stem}_keyframes.txt", panels.tum_bytes(snapshot.estimate), save_immediately=True)
-        else:
-            frames = getattr(self.engine, "frame_trajectory", None)
-            if frames is None or snapshot.keyframe != self.history.newest_keyframe:
-                # Per-frame poses exist for the engine's current state only (the newest keyframe).
-                client.send_file_download(f"{stem}_keyframes.txt", panels.tum_bytes(snapshot.estimate), save_immediately=True)
-                client.add_notification("Keyframe poses exported", "Every-frame poses exist only for the newest keyframe and engines that track frames; the keyframe poses were written.", auto_close_seconds=6.0)
-                return
-            client.send_file_download(f"{stem}_trajectory.txt", panels.tum_bytes(frames().estimate), save_immediately=True)
+        is_newest = snapshot is not None and snapshot.keyframe == self.history.newest_keyframe
+        export(client, what, snapshot, frame_trajectory=getattr(self.engine, "frame_trajectory", None), is_newest=is_newest)
 
     # ------------------------------------------------------------------ control
 
@@ -644,8 +518,7 @@ class Debugger:
         self._playing.clear()
         self._commands.put(Command.STOP)
         self._worker.join(timeout=10.0)
-        self._plot_event.set()
-        self._plotter.join(timeout=5.0)
+        self.plots.stop()
         if self.dense is not None:
             self.dense.stop()
         self.server.stop()

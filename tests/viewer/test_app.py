@@ -186,12 +186,12 @@ def test_status_is_not_overwritten_by_a_late_progress_message(sim_debugger, monk
     real status each time."""
     import time as _time
 
-    import viewer.app as app_module
+    import viewer.status as status_module
 
     d = sim_debugger
     d.submit("step")
     d.wait_idle()
-    monkeypatch.setattr(app_module, "PROGRESS_DELAY_S", 0.001)
+    monkeypatch.setattr(status_module, "PROGRESS_DELAY_S", 0.001)
     real = d.engine.reoptimize
 
     def slow():  # noqa: ANN202
@@ -266,8 +266,8 @@ def test_a_progress_message_that_fires_after_the_final_status_is_dropped(sim_deb
     wrote its final status but before the worker went idle."""
     d = sim_debugger
     d._busy("re-optimizing the window with PL-r …")
-    late = d._progress_timer.function
-    d._progress_timer.cancel()
+    late = d.status_line.timer.function
+    d.status_line.timer.cancel()
     d._set_status("**done**: keyframe 3 · PL-r")
     late()  # the timer thread wins the race
     assert d.status.content == "**done**: keyframe 3 · PL-r"

@@ -3,11 +3,21 @@ the background by the debugger's plot thread)."""
 
 from __future__ import annotations
 
+import logging
+import threading
+import time
+import traceback
+from collections.abc import Callable
+
 import viser
 
+from backend.pipeline.snapshot import Snapshot
 from viewer import images
+from viewer.plots import plots_image
 from viewer.settings import ViewerSettings
 from viewer.tabs.base import Shown, TabActions
+
+log = logging.getLogger(__name__)
 
 
 class PlotsTab:
@@ -28,3 +38,68 @@ class PlotsTab:
 
     def clear(self) -> None:
         self.image.image = images.blank()
+
+
+PLOT_DEBOUNCE_S = 0.4  # plots are drawn once updates pause this long
+PLOT_PLAY_PERIOD_S = 1.0  # and while playing, at most this often
+
+
+class PlotDrawer:
+    """Draws the plots into `image` on a thread of its own, off the engine's: once the
+    worker has been idle for PLOT_DEBOUNCE_S (drawing takes about 150 ms of a shared CPU and
+    must not slow a burst of steps or scrubbing), and while playing between two steps at
+    most every PLOT_PLAY_PERIOD_S. The newest request wins."""
+
+    def __init__(self, image: viser.GuiImageHandle, *, working: threading.Event, playing: threading.Event, worked_at: Callable[[], float]) -> None:
+        self.image = image
+        self._working = working
+        self._playing = playing
+        self._worked_at = worked_at
+        self._request: tuple[list[Snapshot], int | None] | None = None
+        self._event = threading.Event()
+        self._drawing = threading.Event()
+        self._stopped = threading.Event()
+        self.updates = 0
+        self._thread = threading.Thread(target=self._loop, name="coplanar-plots", daemon=True)
+        self._thread.start()
+
+    def request(self, series: list[Snapshot], current: int | None) -> None:
+        self._request = (series, current)
+        self._event.set()
+
+    def _loop(self) -> None:
+        last_draw = 0.0
+        while not self._stopped.is_set():
+            if not self._event.wait(timeout=0.5):
+                continue
+            now = time.monotonic()
+            idle = not self._working.is_set() and now - self._worked_at() >= PLOT_DEBOUNCE_S
+            due = self._playing.is_set() and not self._working.is_set() and now - last_draw >= PLOT_PLAY_PERIOD_S
+            if not (idle or due):
+                time.sleep(0.05)
+                continue
+            self._drawing.set()
+            self._event.clear()
+            request, self._request = self._request, None
+            try:
+                if request is not None and request[0]:
+                    self.image.image = plots_image(request[0], current=request[1])
+                    self.updates += 1
+            except Exception:  # a plot must never stop the debugger
+                log.error("plot error:\n%s", traceback.format_exc())
+            finally:
+                self._drawing.clear()
+            last_draw = time.monotonic()
+
+    def wait(self, timeout: float = 30.0) -> None:
+        """Block until the plots show the latest request (for tests and benchmarks)."""
+        deadline = time.monotonic() + timeout
+        while self._request is not None or self._event.is_set() or self._drawing.is_set():
+            if time.monotonic() > deadline:
+                raise TimeoutError("the plots were not drawn")
+            time.sleep(0.01)
+
+    def stop(self) -> None:
+        self._stopped.set()
+        self._event.set()
+        self._thread.join(timeout=5.0)
