@@ -8,17 +8,18 @@ import os
 # cost more than they gain there. Must be set before numpy loads.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import signal  # noqa: E402
-import sys  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
+import argparse
+import signal
+import sys
+from collections.abc import Sequence
+from typing import NoReturn
 
-from app import render_command, run_command, serve_command, sim_command  # noqa: E402
-from app.errors import EXIT_BAD_INPUT, UsageError, one_line  # noqa: E402
+from app import render_command, run_command, serve_command, sim_command
+from app.errors import EXIT_BAD_INPUT, UsageError, one_line
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line instead of usage + message
+    def error(self, message: str) -> NoReturn:  # one line instead of usage + message
         raise UsageError(f"{self.prog}: {message}")
 
 
@@ -47,8 +48,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {one_line(e)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as e:  # a dataset problem the user can fix: one line, no traceback
-        from backend.data.errors import DatasetError
         from backend.common.optional import MissingLibraryError
+        from backend.data.errors import DatasetError
 
         if isinstance(e, (DatasetError, MissingLibraryError)):
             print(f"error: {one_line(e)}", file=sys.stderr)

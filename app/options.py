@@ -21,7 +21,7 @@ def seed(text: str) -> int:
     return value
 
 
-def bounded_float(*, low: float, high: float, low_open: bool = False, unit: str = "") -> "argparse._ActionType":  # type: ignore[name-defined]
+def bounded_float(*, low: float, high: float, low_open: bool = False, unit: str = "") -> argparse._ActionType:
     """A finite float in [low, high] (`(low, high]` with `low_open`), as an argparse type."""
 
     def parse(text: str) -> float:

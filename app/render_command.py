@@ -18,8 +18,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("render", help="render a synthetic scene to an EuRoC ASL folder (stereo, IMU, ground truth)")
     p.add_argument("--scene", default=DEFAULT_SCENE, type=name_or_path, help=f"built-in scene ({', '.join(SCENE_NAMES)}; default {DEFAULT_SCENE}) or a scene JSON file")
     p.add_argument("--out", required=True, type=path, help="output folder (created; must not hold a mav0 folder already)")
-    p.add_argument("--duration", type=bounded_float(low=0.0, high=MAX_DURATION_S, low_open=True, unit=" seconds"), default=30.0,
-                   help="seconds of motion (default 30; 20 Hz stereo, 200 Hz IMU)")
+    p.add_argument("--duration", type=bounded_float(low=0.0, high=MAX_DURATION_S, low_open=True, unit=" seconds"), default=30.0, help="seconds of motion (default 30; 20 Hz stereo, 200 Hz IMU)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the trajectory and the noise (default 0)")
     p.add_argument("--image-noise", type=bounded_float(low=0.0, high=255.0, unit=" grey levels"), default=0.0, help="Gaussian image noise, grey levels (default 0)")
     p.add_argument("--blur", type=bounded_float(low=0.0, high=50.0, unit=" pixels"), default=0.0, help="Gaussian blur, pixels (default 0, at most 50)")
@@ -57,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     stage = None
     try:
         with staged_folder(out) as stage, tqdm(total=None, desc=f"render {scene.name}", unit="pair", file=sys.stderr, disable=None) as bar:
+
             def on_frame(done: int, total: int) -> None:
                 bar.total = total
                 bar.update(1)

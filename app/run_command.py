@@ -36,23 +36,25 @@ DEFAULT_DURATION_S = 30.0
 # Stages the stereo engine reports as means per frame within a step (the rest: per keyframe).
 
 
-
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from app.options import path
     from app.sources import add_source_arguments
     from backend.optim.variant import VARIANT_NAMES
 
-    p = sub.add_parser("run", help="run the engine headless; write trajectory.txt (every tracked frame), keyframes.txt, groundtruth.txt, metrics.json, map.ply "
-                                       "and points.ply, lines.ply, planes.ply, cameras.ply")
+    p = sub.add_parser(
+        "run", help="run the engine headless; write trajectory.txt (every tracked frame), keyframes.txt, groundtruth.txt, metrics.json, map.ply and points.ply, lines.ply, planes.ply, cameras.ply"
+    )
     add_source_arguments(p, duration_default=DEFAULT_DURATION_S)
     p.add_argument("--variant", required=True, choices=VARIANT_NAMES, help="parametrization")
     p.add_argument("--out", required=True, type=path, help="output folder (created if missing)")
     p.add_argument("--frames", type=int, default=None, metavar="N", help="stereo inputs: stop after the first N frames (default all)")
-    p.add_argument("--keyframes", type=int, default=None, metavar="N",
-                   help="stop after N keyframes (default: mc-a / mc-b one pass of the trajectory, stereo inputs all)")
-    p.add_argument("--dense", action="store_true",
-                   help="image inputs: fuse the keyframes' depth (rendered, or stereo matching) into a TSDF at the estimated poses after the run; "
-                        "write mesh.ply and, on rendered scenes, the mesh's distance to the true planes in metrics.json")
+    p.add_argument("--keyframes", type=int, default=None, metavar="N", help="stop after N keyframes (default: mc-a / mc-b one pass of the trajectory, stereo inputs all)")
+    p.add_argument(
+        "--dense",
+        action="store_true",
+        help="image inputs: fuse the keyframes' depth (rendered, or stereo matching) into a TSDF at the estimated poses after the run; "
+        "write mesh.ply and, on rendered scenes, the mesh's distance to the true planes in metrics.json",
+    )
     p.set_defaults(run=run, history=1)
 
 
@@ -71,7 +73,7 @@ def _prepare_out(out: pathlib.Path) -> None:
         raise UsageError(f"--out {out}: cannot write there: {e.strerror or e}") from None
 
 
-def _json_safe(value):  # noqa: ANN001, ANN202
+def _json_safe(value):
     """`value` with every non-finite float replaced by None (JSON has no NaN)."""
     if isinstance(value, dict):
         return {k: _json_safe(v) for k, v in value.items()}
@@ -82,7 +84,7 @@ def _json_safe(value):  # noqa: ANN001, ANN202
     return value
 
 
-def _write_staged(out: pathlib.Path, write) -> None:  # noqa: ANN001
+def _write_staged(out: pathlib.Path, write) -> None:
     """`write(folder)` into a staging folder inside `out`, moved into `out` when it returns;
     a failed write (a full disk) is one line naming the file, and nothing is moved."""
     from app.errors import UsageError
@@ -102,7 +104,7 @@ def _write_staged(out: pathlib.Path, write) -> None:  # noqa: ANN001
         raise UsageError(f"--out {out}: cannot write {detail}; nothing was written there") from None
 
 
-def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, groundtruth) -> None:  # noqa: ANN001
+def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, groundtruth) -> None:
     """trajectory.txt (`frames`: every tracked frame), keyframes.txt, groundtruth.txt,
     metrics.json, the combined map.ply and the typed points.ply, lines.ply, planes.ply and
     cameras.ply (backend.export.map_files)."""
@@ -122,7 +124,7 @@ def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, ground
         print(f"warning: {e}; wrote map.ply only", file=sys.stderr)
 
 
-def _no_ground_truth(estimate):  # noqa: ANN001, ANN202
+def _no_ground_truth(estimate):
     import numpy as np
 
     from backend.pipeline.snapshot import Trajectory
@@ -165,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
             args.out.rmdir()  # a failed run leaves no empty folder it made (its parents stay)
 
 
-def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
+def _run_simulation(args: argparse.Namespace, engine) -> int:
     import numpy as np
     from tqdm import tqdm
 
@@ -216,13 +218,15 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
         },
     }
     _write_staged(args.out, lambda folder: _write_outputs(folder, snapshot, metrics, frames=snapshot.estimate, groundtruth=Trajectory.of(*evaluated)))
-    print(f"{n} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned), RMSE {_cm(metrics['rmse_cm'])}, "
-          f"{len(snapshot.planes)} planes; {mean['total']:.1f} ms per keyframe; "
-          f"wrote {args.out}/trajectory.txt (keyframes), keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply")
+    print(
+        f"{n} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned), RMSE {_cm(metrics['rmse_cm'])}, "
+        f"{len(snapshot.planes)} planes; {mean['total']:.1f} ms per keyframe; "
+        f"wrote {args.out}/trajectory.txt (keyframes), keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply"
+    )
     return 0
 
 
-def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
+def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:
     """`--dense`: every keyframe's depth fused at its final estimated pose into a TSDF
     (backend.eval.dense), the mesh written to `path`; its size, the fusion time per keyframe
     and, on rendered scenes, the distance of its vertices to the true planes (cm)."""
@@ -242,9 +246,12 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
     with atomic_path(path) as tmp, native_stderr_silenced():
         if not o3d.io.write_triangle_mesh(str(tmp), mesh):
             raise OSError(f"{path}: open3d could not write the mesh (disk full?)")
-    out = {
-        "keyframes_fused": fusion.keyframes, "fusion_ms_per_keyframe": fusion.time_ms / max(fusion.keyframes, 1),
-        "voxel_m": fusion.voxel_m, "vertices": len(mesh.vertices), "triangles": len(mesh.triangles),
+    out: dict[str, object] = {
+        "keyframes_fused": fusion.keyframes,
+        "fusion_ms_per_keyframe": fusion.time_ms / max(fusion.keyframes, 1),
+        "voxel_m": fusion.voxel_m,
+        "vertices": len(mesh.vertices),
+        "triangles": len(mesh.triangles),
         "distance_to_true_planes_cm": None,
     }
     if isinstance(source, RenderedTruth) and len(mesh.vertices):
@@ -253,7 +260,7 @@ def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:  # noqa: ANN001
     return out
 
 
-def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
+def _run_stereo(args: argparse.Namespace, engine) -> int:
     from tqdm import tqdm
 
     from app.errors import UsageError
@@ -326,8 +333,10 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:  # noqa: ANN001
 
     _write_staged(args.out, write)
     per_frame = metrics["timing_ms"]["total_per_frame"]
-    print(f"{engine.frames} frames, {metrics['keyframes']} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned, "
-          f"{metrics['frames_evaluated']} frames), RMSE {_cm(metrics['rmse_cm'])}, {len(snapshot.planes)} planes, {lost} lost frames, "
-          f"{reinitializations} re-initializations; {per_frame:.1f} ms per frame; "
-          f"wrote {args.out}/trajectory.txt, keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply")
+    print(
+        f"{engine.frames} frames, {metrics['keyframes']} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned, "
+        f"{metrics['frames_evaluated']} frames), RMSE {_cm(metrics['rmse_cm'])}, {len(snapshot.planes)} planes, {lost} lost frames, "
+        f"{reinitializations} re-initializations; {per_frame:.1f} ms per frame; "
+        f"wrote {args.out}/trajectory.txt, keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply"
+    )
     return 0

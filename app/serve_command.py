@@ -19,9 +19,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only; another address warns)")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0: any free one; a port in use is an error)")
     p.add_argument(
-        "--allow-origin", action="append", default=[], metavar="URL",
-        help="also admit pages of this origin, e.g. https://slam.lab.example behind a reverse proxy (repeatable; "
-        "by default only the debugger's own page connects)",
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="also admit pages of this origin, e.g. https://slam.lab.example behind a reverse proxy (repeatable; by default only the debugger's own page connects)",
     )
     p.add_argument("--share", action="store_true", help="show viser's share button: a public address through viser's relay (off: share requests are dropped)")
     p.add_argument("--history", type=int, default=500, help="snapshots kept for the keyframe slider (default 500)")
@@ -29,7 +31,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def build_engine(args: argparse.Namespace):  # noqa: ANN201
+def build_engine(args: argparse.Namespace):
     """The debugger's engine for `--scene` / `--dataset` (app.sources); UsageError for bad
     values. The stereo pipeline runs every stage and draws the keyframe image and Hessian."""
     from app.sources import build_engine as build
@@ -56,7 +58,7 @@ def check_bindable(host: str, port: int) -> None:
             raise UsageError(f"cannot serve on {host}:{port}: {e.strerror or e}") from None
 
 
-def access_settings(args: argparse.Namespace):  # noqa: ANN201
+def access_settings(args: argparse.Namespace):
     """The server's AccessSettings from `--allow-origin` and `--share`; UsageError for an
     origin that is not http(s)://HOST[:PORT]."""
     from app.errors import UsageError
@@ -102,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot serve on {args.host}:{args.port}: {e.strerror or e}") from None
     print(f"coplanar debugger: http://{args.host}:{debugger.port} ({engine.source}); Ctrl-C stops", flush=True)
     if args.play:
-        debugger.play.value = True
+        debugger.play.value = True  # type: ignore[misc]  # viser's setter, which mypy does not see through its generic handle
     try:
         threading.Event().wait()
     finally:

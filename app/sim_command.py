@@ -7,6 +7,7 @@ import json
 import pathlib
 import platform
 import sys
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -70,7 +71,10 @@ def _parse_variants(text: str) -> list[Variant]:
 
 
 def format_table(sequence: str, runs: int, summary: dict) -> str:
-    head = f"{'variant':8s} {'items':>5s} {'params':>6s} {'RMSE cm':>8s} {'ATE-sim3':>8s} {'time ms':>8s} {'iters':>5s} {'lins':>5s} {'lin ms':>7s} {'solve ms':>8s} {'setup ms':>8s} {'conv':>5s} {'cost up':>7s}"
+    head = (
+        f"{'variant':8s} {'items':>5s} {'params':>6s} {'RMSE cm':>8s} {'ATE-sim3':>8s} {'time ms':>8s} {'iters':>5s} {'lins':>5s} "
+        f"{'lin ms':>7s} {'solve ms':>8s} {'setup ms':>8s} {'conv':>5s} {'cost up':>7s}"
+    )
     lines = [
         f"sequence {sequence}, {runs} runs (medians; RMSE without alignment (the gauge is fixed), ATE after Sim(3) alignment, both cm;",
         "lins: linearizations; conv: runs that converged; cost up: runs whose final cost is above the initial one)",
@@ -85,7 +89,7 @@ def format_table(sequence: str, runs: int, summary: dict) -> str:
     return "\n".join(lines)
 
 
-def write_plot(path: pathlib.Path, sequence: str, runs: int, results: list, variants: list[str]) -> None:
+def write_plot(path: pathlib.Path, sequence: str, runs: int, results: list, variants: Sequence[str]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -158,7 +162,13 @@ def run(args: argparse.Namespace) -> int:
         "sequence": args.sequence,
         "runs": args.runs,
         "seed": args.seed,
-        "solver": {"method": {"gn": "gauss-newton", "lm": "levenberg-marquardt"}[args.solver], "max_iterations": montecarlo.MAX_ITERATIONS, "linear_solver": "schur complement + envelope or dense cholesky", "gauge": "prior on pose 0 and on the distance from pose 0 to the farthest pose (7 freedoms)", "sigma_rel": sigma_rel},
+        "solver": {
+            "method": {"gn": "gauss-newton", "lm": "levenberg-marquardt"}[args.solver],
+            "max_iterations": montecarlo.MAX_ITERATIONS,
+            "linear_solver": "schur complement + envelope or dense cholesky",
+            "gauge": "prior on pose 0 and on the distance from pose 0 to the farthest pose (7 freedoms)",
+            "sigma_rel": sigma_rel,
+        },
         "machine": {"python": platform.python_version(), "processor": platform.machine(), "cpus": _cpu_count()},
         "variants": {name: s.to_json() for name, s in summary.items()},
     }

@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 import pathlib
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from backend.pipeline.factory import CAMERA_RATE_HZ, MC_SCENES, EngineConfig, make_engine
 
@@ -40,7 +40,7 @@ def default_scene() -> str:
     return DEFAULT_SCENE
 
 
-def load_scene_argument(text: str, *, other_names: tuple[str, ...] = ()):  # noqa: ANN201
+def load_scene_argument(text: str, *, other_names: tuple[str, ...] = ()):
     """A built-in rendered scene by name, or a scene JSON file; UsageError otherwise.
     `other_names` are further names the option accepts (named in the error message)."""
     from app.errors import UsageError
@@ -64,25 +64,29 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
 
     names = scene_names()
     source = p.add_mutually_exclusive_group()
-    source.add_argument("--scene", default=None, metavar="NAME|FILE.json", type=name_or_path,
-                        help=f"rendered scene ({', '.join(names[:-len(MC_SCENES)])}, or a scene JSON file) through the stereo pipeline, "
-                             f"or a Monte-Carlo world ({', '.join(MC_SCENES)}; no images); default {default_scene()}")
+    source.add_argument(
+        "--scene",
+        default=None,
+        metavar="NAME|FILE.json",
+        type=name_or_path,
+        help=f"rendered scene ({', '.join(names[: -len(MC_SCENES)])}, or a scene JSON file) through the stereo pipeline, "
+        f"or a Monte-Carlo world ({', '.join(MC_SCENES)}; no images); default {default_scene()}",
+    )
     source.add_argument("--dataset", default=None, metavar="DIR", type=name_or_path, help="EuRoC ASL folder (the one holding mav0) through the stereo pipeline")
-    p.add_argument("--duration", type=float, default=None, metavar="SECONDS",
-                   help=f"seconds of motion of a rendered scene (default {duration_default:g}; 20 frames per second)")
-    p.add_argument("--stride", type=int, default=None, metavar="N",
-                   help="rendered scenes: keep every N-th frame (20/N frames per second, N times the motion between frames; default 1)")
-    p.add_argument("--speed", type=float, default=None, metavar="F",
-                   help="rendered scenes: move along the same path F times faster (default 1)")
+    p.add_argument("--duration", type=float, default=None, metavar="SECONDS", help=f"seconds of motion of a rendered scene (default {duration_default:g}; 20 frames per second)")
+    p.add_argument("--stride", type=int, default=None, metavar="N", help="rendered scenes: keep every N-th frame (20/N frames per second, N times the motion between frames; default 1)")
+    p.add_argument("--speed", type=float, default=None, metavar="F", help="rendered scenes: move along the same path F times faster (default 1)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the scene, its noise and the RANSACs (default 0)")
-    p.add_argument("--mislabel", type=float, default=None,
-                   help="mc-a / mc-b only: fraction of features with a wrong plane-instance label (default 0.1)")
+    p.add_argument("--mislabel", type=float, default=None, help="mc-a / mc-b only: fraction of features with a wrong plane-instance label (default 0.1)")
     p.add_argument("--window", type=int, default=10, help="keyframes optimized per step (default 10)")
-    p.add_argument("--mode", choices=("stereo", "vio"), default="stereo",
-                   help="stereo SLAM (default) or monocular visual-inertial odometry (VIO: the left images and the IMU)")
-    p.add_argument("--segmenter", choices=("geometric", "learned", "oracle"), default=None,
-                   help="plane instances from stereo disparity (geometric, the stereo default), from the shipped network (learned, "
-                        "assets/planeseg.onnx, the VIO default), or on rendered scenes the renderer's exact plane ids (oracle: a reference, not a segmenter)")
+    p.add_argument("--mode", choices=("stereo", "vio"), default="stereo", help="stereo SLAM (default) or monocular visual-inertial odometry (VIO: the left images and the IMU)")
+    p.add_argument(
+        "--segmenter",
+        choices=("geometric", "learned", "oracle"),
+        default=None,
+        help="plane instances from stereo disparity (geometric, the stereo default), from the shipped network (learned, "
+        "assets/planeseg.onnx, the VIO default), or on rendered scenes the renderer's exact plane ids (oracle: a reference, not a segmenter)",
+    )
     p.add_argument("--segmenter-model", default=None, metavar="FILE.onnx", type=name_or_path, help="with --segmenter learned: another model file (its .json contract beside it)")
     p.set_defaults(duration_default=duration_default)
 
@@ -96,7 +100,7 @@ def _refuse(args: argparse.Namespace, what: str, names: tuple[str, ...]) -> None
             raise UsageError(f"{name} {value:g}: not used with {what}" if isinstance(value, float) else f"{name} {value}: not used with {what}")
 
 
-def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
+def build_engine(args: argparse.Namespace, *, headless: bool):
     """The engine for `--scene` / `--dataset`; UsageError for bad values, DatasetError for
     a bad EuRoC folder. `headless` (`run`): the stereo pipeline skips the stages its variant
     does not use (as the paper's Table III), draws no keyframe image and no Hessian; the
@@ -124,7 +128,7 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
             raise UsageError(f"--mislabel {args.mislabel}: must be a fraction in [0, 1]")
         return make_engine(EngineConfig(scene=scene, seed=args.seed, variant=args.variant, window=args.window, mislabel=mislabel))
 
-    options: dict[str, object] = {}
+    options: dict[str, Any] = {}
     if args.dataset is not None:
         _refuse(args, "--dataset", ("--duration", "--mislabel", "--stride", "--speed"))
         options["dataset"] = args.dataset
@@ -148,8 +152,15 @@ def build_engine(args: argparse.Namespace, *, headless: bool):  # noqa: ANN201
     mode = getattr(args, "mode", "stereo")
     kind = segmenter_kind_argument(args)
     config = EngineConfig(
-        **options, frames=frames, seed=args.seed, variant=args.variant, window=args.window, mode=mode,  # type: ignore[arg-type]
-        segmenter=getattr(args, "segmenter", None), segmenter_model=kind[1], interactive=not headless,
+        **options,
+        frames=frames,
+        seed=args.seed,
+        variant=args.variant,
+        window=args.window,
+        mode=mode,  # type: ignore[arg-type]
+        segmenter=getattr(args, "segmenter", None),
+        segmenter_model=kind[1],
+        interactive=not headless,
     )
     try:
         return make_engine(config)  # DatasetError: one line naming the bad file

@@ -19,11 +19,11 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from backend.data.scenes import builtin_scene  # noqa: E402
-from backend.data.synthetic import SequenceSettings, SyntheticSequence  # noqa: E402
-from backend.eval.dense import DenseFusion, keyframe_depth, map_bounds  # noqa: E402
+from backend.data.scenes import builtin_scene
+from backend.data.synthetic import SequenceSettings, SyntheticSequence
+from backend.eval.dense import DenseFusion, keyframe_depth, map_bounds
 
 
 def main() -> int:
@@ -46,9 +46,11 @@ def main() -> int:
         t0 = time.perf_counter()
         mesh = fusion.mesh()
         extract.append(1e3 * (time.perf_counter() - t0))
-    print(f"integration: median {statistics.median(per_keyframe):.1f} ms per keyframe (range {min(per_keyframe):.1f}-{max(per_keyframe):.1f}, "
-          f"{args.runs} passes of {args.keyframes} keyframes, {fusion.voxel_m * 100:.0f} cm voxels); mesh extraction {statistics.median(extract):.0f} ms "
-          f"({len(mesh.triangles)} triangles)")
+    print(
+        f"integration: median {statistics.median(per_keyframe):.1f} ms per keyframe (range {min(per_keyframe):.1f}-{max(per_keyframe):.1f}, "
+        f"{args.runs} passes of {args.keyframes} keyframes, {fusion.voxel_m * 100:.0f} cm voxels); mesh extraction {statistics.median(extract):.0f} ms "
+        f"({len(mesh.triangles)} triangles)"
+    )
     return 0
 
 

@@ -12,13 +12,13 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import time  # noqa: E402
+import time
 
-import gtsam  # noqa: E402
-import numpy as np  # noqa: E402
+import gtsam
+import numpy as np
 
-from backend.eval import montecarlo, sequences  # noqa: E402
-from backend.optim.problem import build_problem  # noqa: E402
+from backend.eval import montecarlo, sequences
+from backend.optim.problem import build_problem
 
 
 def main() -> None:
@@ -46,7 +46,7 @@ def main() -> None:
         blocks = [batch.jacobian[m][:, 0:6], batch.jacobian[m][:, 6:9], batch.jacobian[m][:, 9:15]]
         res = batch.residual[m].copy()
 
-        def error(this: gtsam.CustomFactor, v: gtsam.Values, H: list | None, res=res, blocks=blocks) -> np.ndarray:  # noqa: ANN001
+        def error(this: gtsam.CustomFactor, v: gtsam.Values, H: list | None, res=res, blocks=blocks) -> np.ndarray:
             if H is not None:
                 for i, B in enumerate(blocks):
                     H[i] = B
@@ -60,14 +60,12 @@ def main() -> None:
         graph.linearize(values)
         times.append(time.perf_counter() - t0)
     med = 1e3 * float(np.median(times))
-    print(f"gtsam CustomFactor: {graph.size()} point factors, linearize {med:.1f} ms "
-          f"({1e3 * med / graph.size():.1f} µs per factor) — one of 10 iterations, median of 7")
+    print(f"gtsam CustomFactor: {graph.size()} point factors, linearize {med:.1f} ms ({1e3 * med / graph.size():.1f} µs per factor) — one of 10 iterations, median of 7")
     t0 = time.perf_counter()
     for _ in range(7):
         problem.linearize(state)
     n_all = sum(b.residual.shape[0] for b in lin.batches)
-    print(f"compiled kernels: the whole PL-w problem ({n_all} factors: points, lines, odometry, prior) linearizes in "
-          f"{1e3 * (time.perf_counter() - t0) / 7:.1f} ms")
+    print(f"compiled kernels: the whole PL-w problem ({n_all} factors: points, lines, odometry, prior) linearizes in {1e3 * (time.perf_counter() - t0) / 7:.1f} ms")
 
 
 if __name__ == "__main__":

@@ -18,20 +18,20 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import pathlib  # noqa: E402
-import platform  # noqa: E402
-import statistics  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
+import argparse
+import pathlib
+import platform
+import statistics
+import sys
+import time
 
-import msgspec  # noqa: E402
+import msgspec
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the raw client of the tests
-from tests.viewer.raw_client import CAMERA, RawClient, free_port  # noqa: E402
+from tests.viewer.raw_client import CAMERA, RawClient, free_port
 
 
-def _debugger(scene: str):  # noqa: ANN202
+def _debugger(scene: str):
     from app.serve_command import DEFAULT_DURATION_S
     from backend.pipeline.factory import EngineConfig, make_engine
     from viewer.app import Debugger
@@ -68,8 +68,10 @@ def burst(args: argparse.Namespace) -> None:
             print(f"run {run}: Reset done {took[-1]:.2f} s after its click; {ran[-1]} of {args.clicks + args.keys} requested steps ran", flush=True)
         finally:
             d.stop()
-    print(f"burst on {args.scene}: {args.clicks} clicks + {args.keys} keys, then Reset: median {statistics.median(took):.2f} s to reset, "
-          f"{statistics.median(ran):g} steps ran (median of {args.runs}; {platform.processor() or platform.machine()}, one BLAS thread)")
+    print(
+        f"burst on {args.scene}: {args.clicks} clicks + {args.keys} keys, then Reset: median {statistics.median(took):.2f} s to reset, "
+        f"{statistics.median(ran):g} steps ran (median of {args.runs}; {platform.processor() or platform.machine()}, one BLAS thread)"
+    )
 
 
 def check(args: argparse.Namespace) -> None:

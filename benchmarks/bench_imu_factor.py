@@ -13,18 +13,18 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import time  # noqa: E402
+import time
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from backend.data.motion import ImuNoise, imu_samples, random_trajectory  # noqa: E402
-from backend.geometry import so3  # noqa: E402
-from backend.imu.preintegration import imu_factor, imu_factor_error, preintegrate, preintegration_params  # noqa: E402
+from backend.data.motion import ImuNoise, imu_samples, random_trajectory
+from backend.geometry import so3
+from backend.imu.preintegration import imu_factor, imu_factor_error, preintegrate, preintegration_params
 
 N_CALLS = 1000
 
 
-def _median_us(fn, n: int) -> float:  # noqa: ANN001
+def _median_us(fn, n: int) -> float:
     times = np.empty(n)
     for k in range(n):
         t0 = time.perf_counter()

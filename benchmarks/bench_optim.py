@@ -16,16 +16,16 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import platform  # noqa: E402
-import time  # noqa: E402
+import argparse
+import platform
+import time
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from backend.eval import montecarlo, sequences  # noqa: E402
-from backend.optim.problem import build_problem  # noqa: E402
-from backend.optim.variant import VARIANTS  # noqa: E402
-from backend.optim.solver import optimize  # noqa: E402
+from backend.eval import montecarlo, sequences
+from backend.optim.problem import build_problem
+from backend.optim.solver import optimize
+from backend.optim.variant import VARIANTS
 
 
 def main() -> None:

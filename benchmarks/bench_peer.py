@@ -48,22 +48,22 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import dataclasses  # noqa: E402
-import importlib.metadata  # noqa: E402
-import platform  # noqa: E402
-import time  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
+import argparse
+import dataclasses
+import importlib.metadata
+import platform
+import time
+from collections.abc import Sequence
 
-import gtsam  # noqa: E402
-import numpy as np  # noqa: E402
-from gtsam.symbol_shorthand import L, X  # noqa: E402
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
 
-from backend.eval import montecarlo, sequences  # noqa: E402
-from backend.eval.trajectory import translational_rmse  # noqa: E402
-from backend.optim.problem import ProblemData, State, build_problem  # noqa: E402
-from backend.optim.variant import VARIANTS  # noqa: E402
-from backend.optim.solver import optimize  # noqa: E402
+from backend.eval import montecarlo, sequences
+from backend.eval.trajectory import translational_rmse
+from backend.optim.problem import ProblemData, State, build_problem
+from backend.optim.solver import optimize
+from backend.optim.variant import VARIANTS
 
 MAX_ITERATIONS = 10
 PEER = "gtsam"

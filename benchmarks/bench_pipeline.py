@@ -17,12 +17,12 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from backend.data.scenes import builtin_scene  # noqa: E402
-from backend.data.synthetic import SequenceSettings, SyntheticSequence  # noqa: E402
-from backend.pipeline.engine import EndOfSequence  # noqa: E402
-from backend.pipeline.stereo_engine import StereoEngine, StereoSettings  # noqa: E402
+from backend.data.scenes import builtin_scene
+from backend.data.synthetic import SequenceSettings, SyntheticSequence
+from backend.pipeline.engine import EndOfSequence
+from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
 
 PER_FRAME = ("point_dm", "tracking")
 

@@ -21,7 +21,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 
-from backend.frontend.segmentation_learned import LearnedSegmenter, LearnedSegmenterSettings, cluster_embeddings  # noqa: E402
+from backend.frontend.segmentation_learned import LearnedSegmenter, LearnedSegmenterSettings, cluster_embeddings
 
 
 def main() -> int:

@@ -15,15 +15,15 @@ import os
 for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
-import argparse  # noqa: E402
-import platform  # noqa: E402
-import time  # noqa: E402
+import argparse
+import platform
+import time
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import numpy as np
 
-from backend.data import motion, render, scenes  # noqa: E402
-from backend.geometry.camera import PinholeCamera  # noqa: E402
+from backend.data import motion, render, scenes
+from backend.geometry.camera import PinholeCamera
 
 CAMERA = PinholeCamera(fx=458.0, fy=458.0, cx=367.0, cy=248.0, width=752, height=480, baseline=0.11)
 
@@ -41,7 +41,9 @@ def main() -> None:
     centre, half_extent = scene.camera_region
     trajectory = motion.random_trajectory(
         np.random.default_rng(args.seed),
-        centre=np.array([centre[0], centre[1], 0.0]), half_extent=half_extent, height=float(centre[2]),
+        centre=np.array([centre[0], centre[1], 0.0]),
+        half_extent=half_extent,
+        height=float(centre[2]),
     )
     times_s = np.arange(args.pairs) / 20.0  # 20 Hz
     R_world_camera = trajectory.rotation(times_s) @ render.R_BODY_CAMERA_FORWARD

@@ -25,18 +25,18 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import dataclasses  # noqa: E402
-import platform  # noqa: E402
-import pathlib  # noqa: E402
-import statistics  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
+import argparse
+import dataclasses
+import pathlib
+import platform
+import statistics
+import sys
+import time
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the browser test helpers
-from tests.browser.conftest import CHROMIUM, FLAGS, open_page, start_debugger, wait_shown  # noqa: E402
+from tests.browser.conftest import CHROMIUM, FLAGS, open_page, start_debugger, wait_shown
 
 # Click Step and wait (in the page) until the "Shown" field differs from its old value;
 # returns [ms to the field change, ms to the next animation frame after it].
@@ -79,7 +79,7 @@ def _summary(values: list[float]) -> str:
     return f"median {statistics.median(v):.1f} ms, p90 {v[int(0.9 * (len(v) - 1))]:.1f} ms, min {v[0]:.1f}, max {v[-1]:.1f} (n={len(v)})"
 
 
-def _clicks(page, n: int) -> tuple[list[float], list[float]]:  # noqa: ANN001
+def _clicks(page, n: int) -> tuple[list[float], list[float]]:
     updated, rendered = [], []
     for _ in range(n):
         a, b = page.evaluate(_CLICK_JS)
@@ -88,7 +88,7 @@ def _clicks(page, n: int) -> tuple[list[float], list[float]]:  # noqa: ANN001
     return updated, rendered
 
 
-def _room_debugger():  # noqa: ANN202
+def _room_debugger():
     """The debugger on the stereo pipeline over the rendered room (as `coplanar serve`)."""
     from app.serve_command import DEFAULT_DURATION_S
     from backend.pipeline.factory import EngineConfig, make_engine
@@ -101,7 +101,7 @@ def _room_debugger():  # noqa: ANN202
     return debugger
 
 
-def bench_latency(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
+def bench_latency(browser, args: argparse.Namespace) -> None:
     debugger = _room_debugger() if args.scene == "room" else start_debugger(sequence=args.sequence)
     try:
         for _ in range(args.warmup):
@@ -113,7 +113,7 @@ def bench_latency(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
         put, draw = debugger._commands.put, debugger.scene.draw
         debugger._commands.put = lambda item, *a, **k: (queued.append(time.perf_counter()), put(item, *a, **k))[1]
 
-        def timed_draw(snapshot, **options):  # noqa: ANN001, ANN003, ANN202
+        def timed_draw(snapshot, **options):
             draw(snapshot, **options)
             flushed.append(time.perf_counter())
 
@@ -137,7 +137,7 @@ def bench_latency(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
         debugger.stop()
 
 
-def bench_points(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
+def bench_points(browser, args: argparse.Namespace) -> None:
     from backend.pipeline.snapshot import PointLandmarks, frozen
 
     debugger = start_debugger(sequence="a")
@@ -152,8 +152,11 @@ def bench_points(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
         n = args.points
         p_world = rng.uniform([-4, -4, -1.5], [4, 4, 1.5], (n, 3))
         points = PointLandmarks(
-            id=frozen(np.arange(n)), p_world=frozen(p_world), plane=frozen(rng.integers(-1, 4, n)),
-            anchor=frozen(np.zeros(n, int)), detection=frozen(rng.integers(0, 3, n).astype(np.uint8)),
+            id=frozen(np.arange(n)),
+            p_world=frozen(p_world),
+            plane=frozen(rng.integers(-1, 4, n)),
+            anchor=frozen(np.zeros(n, int)),
+            detection=frozen(rng.integers(0, 3, n).astype(np.uint8)),
         )
         draw, seen = [], []
         for i in range(args.repeats):  # alternate the label so that each draw is visible
@@ -174,7 +177,7 @@ def bench_points(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
         debugger.stop()
 
 
-def bench_memory(browser, args: argparse.Namespace) -> None:  # noqa: ANN001
+def bench_memory(browser, args: argparse.Namespace) -> None:
     import gc
 
     debugger = start_debugger(sequence="a")

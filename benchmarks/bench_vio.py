@@ -20,7 +20,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from vio_table import run_one  # noqa: E402
+from vio_table import run_one
 
 #: Stages that run once per keyframe (the others are means per frame), keys of timing_ms.all_stages.
 KEYFRAME_STAGES = ("line_dm", "mapping", "plane_seg", "plane_fit", "setup", "optimization", "update", "culling")
@@ -44,8 +44,12 @@ def main() -> int:
         share = {k: (stages.get(k) or 0.0) * m["keyframes"] / m["frames"] for k in KEYFRAME_STAGES}
         share.update({k: stages.get(k) or 0.0 for k in ("point_dm", "tracking")})
         slowest = max(share, key=share.get)
-        print(f"run {run + 1}: {t['total_per_frame']:.1f} ms per frame ({m['frames']} frames, {m['keyframes']} keyframes); per frame: "
-              + ", ".join(f"{k} {v:.1f}" for k, v in sorted(share.items(), key=lambda kv: -kv[1])) + f"; slowest stage: {slowest}", flush=True)
+        print(
+            f"run {run + 1}: {t['total_per_frame']:.1f} ms per frame ({m['frames']} frames, {m['keyframes']} keyframes); per frame: "
+            + ", ".join(f"{k} {v:.1f}" for k, v in sorted(share.items(), key=lambda kv: -kv[1]))
+            + f"; slowest stage: {slowest}",
+            flush=True,
+        )
     print(f"median of {args.runs}: {statistics.median(totals):.1f} ms per frame (range {min(totals):.1f}-{max(totals):.1f})")
     return 0
 

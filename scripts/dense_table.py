@@ -21,9 +21,10 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from app import cli  # noqa: E402
-from backend.optim.variant import VARIANTS  # noqa: E402
-from euroc_table import _f, add_no_doc_option, publish  # noqa: E402
+from euroc_table import _f, add_no_doc_option, publish
+
+from app import cli
+from backend.optim.variant import VARIANTS
 
 
 def main() -> int:
@@ -43,17 +44,21 @@ def main() -> int:
         d = m["dense"]
         dist = d["distance_to_true_planes_cm"]
         runs.append({"variant": variant, "ate_rmse_cm": m["ate_rmse_cm"], "keyframe_ate_rmse_cm": m["keyframe_ate_rmse_cm"], "dense": d})
-        rows.append(f"| {variant} | {_f(m['keyframe_ate_rmse_cm'])} | {_f(dist['median'])} | {_f(dist['p90'])} | {100 * dist['within_2cm']:.1f} | {d['triangles']} | {_f(d['fusion_ms_per_keyframe'], 1)} |")
+        rows.append(
+            f"| {variant} | {_f(m['keyframe_ate_rmse_cm'])} | {_f(dist['median'])} | {_f(dist['p90'])} | {100 * dist['within_2cm']:.1f} | {d['triangles']} | {_f(d['fusion_ms_per_keyframe'], 1)} |"
+        )
         print(rows[-1], flush=True)
-    body = "\n".join([
-        f"`{args.scene}`, {args.duration:g} s, one run per variant (`.venv/bin/python scripts/dense_table.py`): every keyframe's rendered depth fused "
-        "into a TSDF (3 cm voxels) at the keyframe's final estimated pose (`coplanar run --dense`); the distance of the mesh's vertices to the "
-        "nearest true plane (cm), and the fusion time per keyframe (ms, the integration alone).",
-        "",
-        "| variant | keyframe ATE cm | mesh to planes: median cm | 90th pct. cm | within 2 cm % | triangles | fusion ms / keyframe |",
-        "|---|---|---|---|---|---|---|",
-        *rows,
-    ])
+    body = "\n".join(
+        [
+            f"`{args.scene}`, {args.duration:g} s, one run per variant (`.venv/bin/python scripts/dense_table.py`): every keyframe's rendered depth fused "
+            "into a TSDF (3 cm voxels) at the keyframe's final estimated pose (`coplanar run --dense`); the distance of the mesh's vertices to the "
+            "nearest true plane (cm), and the fusion time per keyframe (ms, the integration alone).",
+            "",
+            "| variant | keyframe ATE cm | mesh to planes: median cm | 90th pct. cm | within 2 cm % | triangles | fusion ms / keyframe |",
+            "|---|---|---|---|---|---|---|",
+            *rows,
+        ]
+    )
     return publish({"scene": args.scene, "duration_s": args.duration, "runs": runs}, body, json_name="dense.json", block="dense-table", write_doc=not args.no_doc)
 
 

@@ -35,7 +35,10 @@ def run_one(source: list[str], variant: str, *, keep: tuple[str, ...] = ()) -> d
         t0 = time.perf_counter()
         subprocess.run(
             [str(ROOT / ".venv" / "bin" / "coplanar"), "run", *source, "--variant", variant, "--out", out],
-            check=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            check=True,
+            env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         metrics = json.loads((pathlib.Path(out) / "metrics.json").read_text())
         metrics["files"] = {name: (pathlib.Path(out) / name).read_text() for name in keep}
@@ -59,8 +62,9 @@ def publish(results: dict | None, body: str, *, json_name: str, block: str, writ
 
 def add_no_doc_option(parser: argparse.ArgumentParser, leaves: str) -> None:
     """`--no-doc` (and its old name `--no-readme`): print the table, leave `leaves` alone."""
-    parser.add_argument("--no-doc", "--no-readme", dest="no_doc", action="store_true",
-                        help=f"print the table, leave {leaves} alone (--no-readme: the old name, from when the tables were in README.md)")
+    parser.add_argument(
+        "--no-doc", "--no-readme", dest="no_doc", action="store_true", help=f"print the table, leave {leaves} alone (--no-readme: the old name, from when the tables were in README.md)"
+    )
 
 
 def _f(value: float | None, digits: int = 2) -> str:
@@ -100,8 +104,11 @@ def main() -> int:
         r = run_one(["--dataset", str(args.dataset)], variant)
         r.pop("files")
         results.append(r)
-        print(f"{variant:6s} ATE {_f(r['ate_rmse_cm'])} cm over {r['frames_evaluated']} frames, lost {r['lost_frames']}, "
-              f"kf {r['keyframes']}, total/frame {_f(r['timing_ms']['total_per_frame'], 1)} ms ({r['wall_s']:.0f} s)", flush=True)
+        print(
+            f"{variant:6s} ATE {_f(r['ate_rmse_cm'])} cm over {r['frames_evaluated']} frames, lost {r['lost_frames']}, "
+            f"kf {r['keyframes']}, total/frame {_f(r['timing_ms']['total_per_frame'], 1)} ms ({r['wall_s']:.0f} s)",
+            flush=True,
+        )
     return publish({"dataset": args.dataset.name, "runs": results}, table(results, args.dataset.name), json_name="euroc.json", block="euroc-table", write_doc=not args.no_doc)
 
 

@@ -22,9 +22,8 @@ import io
 import sys
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
 from euroc_table import VARIANTS, _f, add_no_doc_option, publish, run_one
+from scipy.spatial.transform import Rotation
 
 
 def motion_between_frames(groundtruth_tum: str) -> dict[str, float]:
@@ -82,8 +81,11 @@ def main() -> int:
         results = []
         for r in pool.map(lambda job: run_case(*job), todo):
             results.append(r)
-            print(f"{r['stride']}x{r['speed']:g} {r['variant']:6s} ATE {_f(r['ate_rmse_cm'])} cm, lost {r['lost_frames']}, "
-                  f"re-init {r['reinitializations']}, relocalized {r['relocalized_frames']}, ({r['wall_s']:.0f} s)", flush=True)
+            print(
+                f"{r['stride']}x{r['speed']:g} {r['variant']:6s} ATE {_f(r['ate_rmse_cm'])} cm, lost {r['lost_frames']}, "
+                f"re-init {r['reinitializations']}, relocalized {r['relocalized_frames']}, ({r['wall_s']:.0f} s)",
+                flush=True,
+            )
     body = table(results, timed=args.jobs <= 1)
     return publish({"scene": args.scene, "jobs": args.jobs, "runs": results}, body, json_name="fast_motion.json", block="fast-motion-table", write_doc=not args.no_doc)
 

@@ -40,22 +40,22 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import numpy as np  # noqa: E402
-from scipy.signal import savgol_filter  # noqa: E402
+import numpy as np
+from scipy.signal import savgol_filter
 
-from backend.data.euroc import _read_ground_truth, _read_imu  # noqa: E402
-from backend.data.motion import GRAVITY_WORLD, ImuData  # noqa: E402
-from backend.geometry import so3  # noqa: E402
-from backend.imu.preintegration import imu_factor, imu_factor_error, predict_state, preintegrate, preintegration_params  # noqa: E402
+from backend.data.euroc import _read_ground_truth, _read_imu
+from backend.data.motion import GRAVITY_WORLD, ImuData
+from backend.geometry import so3
+from backend.imu.preintegration import imu_factor, imu_factor_error, predict_state, preintegrate, preintegration_params
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "euroc_v101_imu"
 DEFAULT_OUT = ROOT / "docs" / "vio" / "imu_realcheck.json"
 DEFAULT_CONTROL_OUT = ROOT / "docs" / "vio" / "imu_realcheck_control.json"
 CONTROL_DURATION_S = 145.0  # as long as V1_01
-WINDOW_SAMPLES = 100          # ground-truth samples per window: 0.5 s at 200 Hz
-VELOCITY_HALF_WINDOW = 10     # ±50 ms of ground truth for the velocity fit
-BIAS_SEGMENT_S = 20.0         # biases from the windows starting in the first 20 s
-ROLLING_S = 10.0              # or from the windows of the preceding 10 s
+WINDOW_SAMPLES = 100  # ground-truth samples per window: 0.5 s at 200 Hz
+VELOCITY_HALF_WINDOW = 10  # ±50 ms of ground truth for the velocity fit
+BIAS_SEGMENT_S = 20.0  # biases from the windows starting in the first 20 s
+ROLLING_S = 10.0  # or from the windows of the preceding 10 s
 SCAN_WINDOW_SAMPLES = (10, 20, 50, 100, 200, 400)  # 50 ms ... 2 s
 BLOCKS = {"rotation": slice(0, 3), "position": slice(3, 6), "velocity": slice(6, 9)}
 
@@ -99,7 +99,7 @@ def load_control(scene: str, *, duration_s: float, seed: int) -> tuple[ImuData, 
     return seq.imu, truth, {"calibration": calibration, "v_world": v_world, "bias_true": {"gyro_rad_s": seq.bias_gyro[0].tolist(), "accel_m_s2": seq.bias_accel[0].tolist()}}
 
 
-def windows(truth, *, segment_s: float) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+def windows(truth, *, segment_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Start indices of the bias-estimation windows and of the evaluation windows."""
     starts = np.arange(VELOCITY_HALF_WINDOW, len(truth) - VELOCITY_HALF_WINDOW - WINDOW_SAMPLES, WINDOW_SAMPLES)
     t_start_s = (truth.timestamp_ns[starts] - truth.timestamp_ns[0]) * 1e-9
@@ -107,19 +107,16 @@ def windows(truth, *, segment_s: float) -> tuple[np.ndarray, np.ndarray]:  # noq
     return starts[fit], starts[~fit]
 
 
-def _states(truth, v_world: np.ndarray, i: int) -> tuple[np.ndarray, ...]:  # noqa: ANN001
+def _states(truth, v_world: np.ndarray, i: int) -> tuple[np.ndarray, ...]:
     j = i + WINDOW_SAMPLES
     return truth.R_world_body[i], truth.p_world_body[i], v_world[i], truth.R_world_body[j], truth.p_world_body[j], v_world[j]
 
 
-def estimate_bias(imu: ImuData, truth, v_world: np.ndarray, starts: np.ndarray, params) -> np.ndarray:  # noqa: ANN001
+def estimate_bias(imu: ImuData, truth, v_world: np.ndarray, starts: np.ndarray, params) -> np.ndarray:
     """Gauss-Newton on the 6 bias parameters, states fixed at the ground truth."""
     bias = np.zeros(6)
     for _ in range(2):  # re-integrate at the current estimate, then first-order steps
-        terms = [
-            imu_factor(preintegrate(imu, int(truth.timestamp_ns[i]), int(truth.timestamp_ns[i + WINDOW_SAMPLES]), bias_accel=bias[:3], bias_gyro=bias[3:], params=params))
-            for i in starts
-        ]
+        terms = [imu_factor(preintegrate(imu, int(truth.timestamp_ns[i]), int(truth.timestamp_ns[i + WINDOW_SAMPLES]), bias_accel=bias[:3], bias_gyro=bias[3:], params=params)) for i in starts]
         for _ in range(3):
             H = np.zeros((6, 6))
             g = np.zeros(6)
@@ -131,7 +128,7 @@ def estimate_bias(imu: ImuData, truth, v_world: np.ndarray, starts: np.ndarray, 
     return bias
 
 
-def rolling_biases(imu: ImuData, truth, v_world: np.ndarray, starts: np.ndarray, params, *, before: np.ndarray, seconds: float) -> np.ndarray:  # noqa: ANN001
+def rolling_biases(imu: ImuData, truth, v_world: np.ndarray, starts: np.ndarray, params, *, before: np.ndarray, seconds: float) -> np.ndarray:
     """Per window in `starts`, the biases fitted (`estimate_bias`) on the windows of
     `before` ∪ `starts` that end within the preceding `seconds`: (N, 6)."""
     every = np.union1d(before, starts)
@@ -139,7 +136,7 @@ def rolling_biases(imu: ImuData, truth, v_world: np.ndarray, starts: np.ndarray,
     return np.array([estimate_bias(imu, truth, v_world, every[(every + WINDOW_SAMPLES <= i) & (every >= i - span)], params) for i in starts])
 
 
-def evaluate(imu: ImuData, truth, v_world: np.ndarray, starts: np.ndarray, params, bias: np.ndarray) -> dict:  # noqa: ANN001
+def evaluate(imu: ImuData, truth, v_world: np.ndarray, starts: np.ndarray, params, bias: np.ndarray) -> dict:
     """Prediction errors, implied 1-σ and NEES over the windows (module docstring); `bias`
     (6,) for every window or (N, 6) per window."""
     per_window = np.broadcast_to(bias, (len(starts), 6))
@@ -173,7 +170,7 @@ def evaluate(imu: ImuData, truth, v_world: np.ndarray, starts: np.ndarray, param
     return out
 
 
-def window_length_scan(imu: ImuData, truth, v_world: np.ndarray, first: int, params, bias: np.ndarray) -> list[dict]:  # noqa: ANN001
+def window_length_scan(imu: ImuData, truth, v_world: np.ndarray, first: int, params, bias: np.ndarray) -> list[dict]:
     """Median prediction errors and implied 1-σ against the window length, on disjoint windows
     from ground-truth index `first` on (after the bias segment): how the errors grow."""
     rows = []
@@ -188,15 +185,20 @@ def window_length_scan(imu: ImuData, truth, v_world: np.ndarray, first: int, par
             pos.append(100.0 * np.linalg.norm(p_pred - truth.p_world_body[j]))
             vel.append(100.0 * np.linalg.norm(v_pred - v_world[j]))
             sigma_rot.append(np.degrees(np.sqrt(np.trace(pim.preintMeasCov()[:3, :3]))))
-        rows.append({
-            "window_s": n * 0.005, "windows": int(len(starts)),
-            "rotation_error_deg_median": float(np.median(rot)), "rotation_sigma_deg_median": float(np.median(sigma_rot)),
-            "position_error_cm_median": float(np.median(pos)), "velocity_error_cm_s_median": float(np.median(vel)),
-        })
+        rows.append(
+            {
+                "window_s": n * 0.005,
+                "windows": int(len(starts)),
+                "rotation_error_deg_median": float(np.median(rot)),
+                "rotation_sigma_deg_median": float(np.median(sigma_rot)),
+                "position_error_cm_median": float(np.median(pos)),
+                "velocity_error_cm_s_median": float(np.median(vel)),
+            }
+        )
     return rows
 
 
-def rate_discrepancy(imu: ImuData, truth, bias_gyro: np.ndarray, first: int) -> dict:  # noqa: ANN001
+def rate_discrepancy(imu: ImuData, truth, bias_gyro: np.ndarray, first: int) -> dict:
     """Where the rotation errors come from: the gyroscope minus the estimated bias against the
     ground truth's angular rate (body frame, from the orientation ±25 ms apart), each
     averaged over the same 50 ms, from ground-truth index `first` on; per axis, the RMS of
@@ -247,16 +249,11 @@ def table(result: dict) -> str:
     ]
     for name, label in (("estimated_bias", "estimated (first 20 s)"), ("rolling_bias", f"estimated (the preceding {ROLLING_S:.0f} s)"), ("zero_bias", "zero")):
         r = result["evaluation"][name]
-        cells = [
-            f"{r[f'{k}_error_{u}']['median']:.3g} / {r[f'{k}_error_{u}']['p95']:.3g}"
-            for k, u in (("rotation", "deg"), ("position", "cm"), ("velocity", "cm_s"))
-        ]
+        cells = [f"{r[f'{k}_error_{u}']['median']:.3g} / {r[f'{k}_error_{u}']['p95']:.3g}" for k, u in (("rotation", "deg"), ("position", "cm"), ("velocity", "cm_s"))]
         n = r["nees"]
         lines.append(f"| {label} | {cells[0]} | {cells[1]} | {cells[2]} | {n['rotation']:.3g} / {n['position']:.3g} / {n['velocity']:.3g} |")
     r = result["evaluation"]["estimated_bias"]
-    lines.append(
-        f"| 1-σ from sensor.yaml | {r['rotation_sigma_deg_median']:.3g} | {r['position_sigma_cm_median']:.3g} | {r['velocity_sigma_cm_s_median']:.3g} | |"
-    )
+    lines.append(f"| 1-σ from sensor.yaml | {r['rotation_sigma_deg_median']:.3g} | {r['position_sigma_cm_median']:.3g} | {r['velocity_sigma_cm_s_median']:.3g} | |")
     lines += [
         "",
         "Against the window length (estimated bias; median error, rotation 1-σ from sensor.yaml):",
@@ -275,7 +272,8 @@ def table(result: dict) -> str:
         "Gyroscope minus bias against the ground truth's rate (1 s averages, rad/s RMS x / y / z): "
         + " / ".join(f"{x:.4f}" for x in r["rms_1s_rad_s"])
         + f"; {r['worst_axis']} ranges over [{r['worst_axis_range_1s_rad_s'][0]:+.4f}, {r['worst_axis_range_1s_rad_s'][1]:+.4f}]; after a fitted 3x3 matrix on the rate: "
-        + " / ".join(f"{x:.4f}" for x in r["rms_1s_after_linear_fit_rad_s"]) + ".",
+        + " / ".join(f"{x:.4f}" for x in r["rms_1s_after_linear_fit_rad_s"])
+        + ".",
     ]
     b = result["bias_estimate"]
     lines += ["", f"Estimated bias: accel ({', '.join(f'{x:+.4f}' for x in b['accel_m_s2'])}) m/s², gyro ({', '.join(f'{x:+.5f}' for x in b['gyro_rad_s'])}) rad/s."]

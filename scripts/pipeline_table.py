@@ -25,18 +25,19 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from backend.eval.run_metrics import stereo_timing  # noqa: E402
-from backend.pipeline.factory import EngineConfig, make_engine  # noqa: E402
-from backend.eval.planes import recovered_planes  # noqa: E402
-from backend.optim.variant import VARIANTS  # noqa: E402
-from backend.pipeline.engine import EndOfSequence  # noqa: E402
-from results_doc import write_block  # noqa: E402
+from results_doc import write_block
+
+from backend.eval.planes import recovered_planes
+from backend.eval.run_metrics import stereo_timing
+from backend.optim.variant import VARIANTS
+from backend.pipeline.engine import EndOfSequence
+from backend.pipeline.factory import EngineConfig, make_engine
 
 MIN_SHARE = 0.05
 
@@ -69,9 +70,19 @@ def run_one(scene: str, variant: str, duration: float, *, segmenter: str | None 
     found = recovered_planes(*est, *true, hulls_est_world=[p.hull_world for p in snapshot.planes])
     found_at_origin = recovered_planes(*est, *true)
     return {
-        "scene": scene, "variant": variant, "duration_s": duration, "frames": engine.frames, "keyframes": engine.keyframes,
-        "ate_cm": snapshot.metrics.ate_cm, "lost_frames": lost, "map_planes": len(snapshot.planes),
-        "planes_seen": len(ids), "planes_recovered": int(found.sum()), "planes_recovered_by_origin_offset": int(found_at_origin.sum()), "timing_ms": stereo_timing(steps), "wall_s": wall,
+        "scene": scene,
+        "variant": variant,
+        "duration_s": duration,
+        "frames": engine.frames,
+        "keyframes": engine.keyframes,
+        "ate_cm": snapshot.metrics.ate_cm,
+        "lost_frames": lost,
+        "map_planes": len(snapshot.planes),
+        "planes_seen": len(ids),
+        "planes_recovered": int(found.sum()),
+        "planes_recovered_by_origin_offset": int(found_at_origin.sum()),
+        "timing_ms": stereo_timing(steps),
+        "wall_s": wall,
     }
 
 
@@ -117,8 +128,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=30.0)
     parser.add_argument("--scenes", default="room,corridor,boxes")
-    parser.add_argument("--no-doc", "--no-readme", dest="no_doc", action="store_true",
-                        help="print the tables, leave docs/results/pipeline.md alone (--no-readme: the old name, from when the tables were in README.md)")
+    parser.add_argument(
+        "--no-doc", "--no-readme", dest="no_doc", action="store_true", help="print the tables, leave docs/results/pipeline.md alone (--no-readme: the old name, from when the tables were in README.md)"
+    )
     parser.add_argument("--from-json", action="store_true", help="rewrite the tables in docs/results/pipeline.md from docs/pipeline/results.json without running")
     args = parser.parse_args()
     scenes = args.scenes.split(",")
@@ -128,8 +140,11 @@ def main() -> int:
         for variant in VARIANTS:
             r = run_one(scene, variant, args.duration)
             results.append(r)
-            print(f"{scene:9s} {variant:6s} ATE {r['ate_cm']:6.2f} cm  planes {r['planes_recovered']}/{r['planes_seen']}  "
-                  f"kf {r['keyframes']:3d}/{r['frames']}  lost {r['lost_frames']}  total/frame {_ms(r['timing_ms']['total_per_frame'])} ms  ({r['wall_s']:.0f} s)", flush=True)
+            print(
+                f"{scene:9s} {variant:6s} ATE {r['ate_cm']:6.2f} cm  planes {r['planes_recovered']}/{r['planes_seen']}  "
+                f"kf {r['keyframes']:3d}/{r['frames']}  lost {r['lost_frames']}  total/frame {_ms(r['timing_ms']['total_per_frame'])} ms  ({r['wall_s']:.0f} s)",
+                flush=True,
+            )
     if not args.from_json:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(results, indent=2) + "\n")

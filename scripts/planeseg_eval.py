@@ -38,15 +38,15 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "training"))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from backend.frontend.segmentation_learned import LearnedSegmenter, LearnedSegmenterSettings  # noqa: E402
+from backend.frontend.segmentation_learned import LearnedSegmenter, LearnedSegmenterSettings
 
 MIN_SHARE = 0.01
 WALL_SHARE = 0.10
 
 
-def planes_found(R_world_camera: np.ndarray, reference, learned) -> list[dict]:  # noqa: ANN001
+def planes_found(R_world_camera: np.ndarray, reference, learned) -> list[dict]:
     """The floor (every reference instance whose normal is within 5° of the vertical and
     below the camera, together: the geometric segmenter itself may split it) and each main
     wall (any other reference instance covering >= 10 % of the image: the padded walls of
@@ -81,7 +81,7 @@ def planes_found(R_world_camera: np.ndarray, reference, learned) -> list[dict]: 
     return rows
 
 
-def reference_normals(reference) -> np.ndarray:  # noqa: ANN001
+def reference_normals(reference) -> np.ndarray:
     """(3, h, w) unit normals at the network's output size of the geometric segmenter's
     instances (`PlaneMasks` with fitted planes), turned towards the camera; zero elsewhere."""
     from planeseg_data import normal_image, to_output_labels
@@ -108,8 +108,14 @@ def instance_figures(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
             best = max(best, o / np.count_nonzero(g | (pred == c)))
         matched += best >= 0.5
     both = p & t
-    return {"planar_iou": float(iou), "recall": float(matched / len(big)) if len(big) else float("nan"), "instances": int(len(big)),
-            "matched": int(matched), "ari": adjusted_rand(pred[both], truth[both]), "predicted": int(len(np.unique(pred[p])))}
+    return {
+        "planar_iou": float(iou),
+        "recall": float(matched / len(big)) if len(big) else float("nan"),
+        "instances": int(len(big)),
+        "matched": int(matched),
+        "ari": adjusted_rand(pred[both], truth[both]),
+        "predicted": int(len(np.unique(pred[p]))),
+    }
 
 
 def adjusted_rand(a: np.ndarray, b: np.ndarray) -> float:
@@ -137,7 +143,7 @@ def normal_error_deg(predicted: np.ndarray | None, truth: np.ndarray) -> float:
     return float(np.degrees(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))))
 
 
-def rendered_frames(args: argparse.Namespace):  # noqa: ANN201
+def rendered_frames(args: argparse.Namespace):
     """(name, left image, full-size truth labels, output-size true normals or None) of the
     held-out (or, with `--validation`, the validation) rendered frames."""
     from planeseg_data import camera_normals, normal_image, random_pose, random_room, to_output_labels
@@ -179,9 +185,13 @@ def main() -> int:
     parser.add_argument("--layouts", type=int, default=25)
     parser.add_argument("--views", type=int, default=8)
     parser.add_argument("--gallery", type=pathlib.Path, default=ROOT / "docs" / "segmentation")
-    parser.add_argument("--no-doc", "--no-readme", dest="no_doc", action="store_true",
-                        help="print the table, leave docs/results/segmenter.md and docs/pipeline/planeseg_eval.json alone "
-                        "(--no-readme: the old name, from when the tables were in README.md)")
+    parser.add_argument(
+        "--no-doc",
+        "--no-readme",
+        dest="no_doc",
+        action="store_true",
+        help="print the table, leave docs/results/segmenter.md and docs/pipeline/planeseg_eval.json alone (--no-readme: the old name, from when the tables were in README.md)",
+    )
     parser.add_argument("--model", type=pathlib.Path, default=None, help="another .onnx file (default: the shipped one)")
     parser.add_argument("--normal-weight", type=float, default=None, help="mean shift's normal weight (default: the contract's)")
     parser.add_argument("--bandwidth", type=float, default=None, help="mean shift's bandwidth (default: the contract's)")
@@ -238,8 +248,7 @@ def main() -> int:
         "",
     ]
     with_normals = seg.has_normals  # the column only for a model with a normal output
-    lines += ["| frames | n | planar IoU | recall@0.5 | pooled recall | ARI |" + (" median normal error ° |" if with_normals else ""),
-              "|---|---|---|---|---|---|" + ("---|" if with_normals else "")]
+    lines += ["| frames | n | planar IoU | recall@0.5 | pooled recall | ARI |" + (" median normal error ° |" if with_normals else ""), "|---|---|---|---|---|---|" + ("---|" if with_normals else "")]
     for name, r in results.items():
         if name.endswith(" planes"):
             continue

@@ -12,8 +12,8 @@ import numpy as np
 from PIL import Image
 
 from backend.data.motion import random_trajectory
-from backend.data.scenes import SCENE_NAMES, builtin_scene
 from backend.data.render import render_view
+from backend.data.scenes import SCENE_NAMES, builtin_scene
 from backend.data.synthetic import CAMERA, T_BODY_CAM0
 
 OUT = pathlib.Path(__file__).resolve().parents[1] / "docs" / "scenes"

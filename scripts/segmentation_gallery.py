@@ -20,15 +20,31 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from backend.data.calibration import read_camera_yaml, stereo_rectification  # noqa: E402
-from backend.data.euroc import read_indexed_poses  # noqa: E402
-from backend.frontend.segmentation import PlaneMasks  # noqa: E402
-from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter  # noqa: E402
+from backend.data.calibration import read_camera_yaml, stereo_rectification
+from backend.data.euroc import read_indexed_poses
+from backend.frontend.segmentation import PlaneMasks
+from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
 
 PAIRS = REPO / ".." / "shared" / "data" / "euroc_v101_pairs" / "ForLoopClosureDetector"
 PALETTE = np.array(
-    [[230, 25, 75], [60, 180, 75], [255, 225, 25], [0, 130, 200], [245, 130, 48], [145, 30, 180], [70, 240, 240], [240, 50, 230],
-     [210, 245, 60], [250, 190, 212], [0, 128, 128], [220, 190, 255], [170, 110, 40], [255, 250, 200], [128, 0, 0], [170, 255, 195]],
+    [
+        [230, 25, 75],
+        [60, 180, 75],
+        [255, 225, 25],
+        [0, 130, 200],
+        [245, 130, 48],
+        [145, 30, 180],
+        [70, 240, 240],
+        [240, 50, 230],
+        [210, 245, 60],
+        [250, 190, 212],
+        [0, 128, 128],
+        [220, 190, 255],
+        [170, 110, 40],
+        [255, 250, 200],
+        [128, 0, 0],
+        [170, 255, 195],
+    ],
     np.uint8,
 )  # RGB
 
@@ -41,7 +57,7 @@ def overlay(image: np.ndarray, masks: PlaneMasks, *, alpha: float = 0.45) -> np.
     return rgb.astype(np.uint8)
 
 
-def real_pairs():  # noqa: ANN201
+def real_pairs():
     """(index, rectified left, rectified right, rectified camera, R_world_rect0) of each pair."""
     rect = stereo_rectification(read_camera_yaml(PAIRS / "sensorLeft.yaml"), read_camera_yaml(PAIRS / "sensorRight.yaml"))
     poses = read_indexed_poses(PAIRS / "groundtruth_from_openvins_original.txt")

@@ -14,7 +14,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from euroc_table import DEFAULT_DATASET, _f, add_no_doc_option, publish, run_one as run_dataset
+from euroc_table import DEFAULT_DATASET, _f, add_no_doc_option, publish
+from euroc_table import run_one as run_dataset
 from pipeline_table import run_one as run_scene
 
 
@@ -40,15 +41,17 @@ def main() -> int:
             runs.append({"input": DEFAULT_DATASET.name, "segmenter": kind, **r})
             rows.append(f"| {DEFAULT_DATASET.name} (real) | {kind} | {_f(r['ate_rmse_cm'])} (all frames) | – | {r['planes']} | {_f(r['timing_ms']['plane_seg'], 1)} | {r['lost_frames']} |")
             print(rows[-1], flush=True)
-    body = "\n".join([
-        f"{args.variant}, one run each (`.venv/bin/python scripts/segmenter_table.py`): ATE after SE(3) alignment (cm; rendered scenes over keyframes, "
-        "the real slice over every frame), ground-truth planes recovered (within 10°, the map plane's patch within 10 cm; planes covering ≥ 5 % of some keyframe), "
-        "planes in the final map, plane segmentation per keyframe (ms), lost frames.",
-        "",
-        "| input | segmenter | ATE | planes recovered | map planes | plane seg. ms | lost |",
-        "|---|---|---|---|---|---|---|",
-        *rows,
-    ])
+    body = "\n".join(
+        [
+            f"{args.variant}, one run each (`.venv/bin/python scripts/segmenter_table.py`): ATE after SE(3) alignment (cm; rendered scenes over keyframes, "
+            "the real slice over every frame), ground-truth planes recovered (within 10°, the map plane's patch within 10 cm; planes covering ≥ 5 % of some keyframe), "
+            "planes in the final map, plane segmentation per keyframe (ms), lost frames.",
+            "",
+            "| input | segmenter | ATE | planes recovered | map planes | plane seg. ms | lost |",
+            "|---|---|---|---|---|---|---|",
+            *rows,
+        ]
+    )
     return publish({"variant": args.variant, "runs": runs}, body, json_name="segmenter.json", block="segmenter-table", write_doc=not args.no_doc)
 
 

@@ -65,8 +65,7 @@ def table(results: dict[str, dict], solver: str) -> str:
         for res in (a, b):
             e = res[v]
             cells.append(
-                f"{e['rmse_cm_median']:.2f} | {e['ate_sim3_cm_median']:.2f} | {e['time_ms_median']:.0f} | {e['linearizations_median']:.0f} "
-                f"| {e['converged_runs']}/{runs} | {e['cost_increase_runs']}"
+                f"{e['rmse_cm_median']:.2f} | {e['ate_sim3_cm_median']:.2f} | {e['time_ms_median']:.0f} | {e['linearizations_median']:.0f} | {e['converged_runs']}/{runs} | {e['cost_increase_runs']}"
             )
         lines.append(f"| {v} | {b[v]['items']} | {b[v]['params']} | {cells[0]} | {cells[1]} |")
     seqs = (a, b)
@@ -77,15 +76,11 @@ def table(results: dict[str, dict], solver: str) -> str:
     lines.append("|---|---|---|---|")
     for w, r, paper in (("P-w", "P-r", "31%"), ("PL-w", "PL-r", "33%")):
         lines.append(
-            f"| {w} faster than {r} (paper: by {paper}) | {pct(time_ms(a, w), time_ms(a, r))} | {pct(time_ms(b, w), time_ms(b, r))} "
-            f"| {verdict([time_ms(x, w) < time_ms(x, r) for x in seqs])} |"
+            f"| {w} faster than {r} (paper: by {paper}) | {pct(time_ms(a, w), time_ms(a, r))} | {pct(time_ms(b, w), time_ms(b, r))} | {verdict([time_ms(x, w) < time_ms(x, r) for x in seqs])} |"
         )
     for kind in ("P", "PL"):
         w, r, wo = (f"{kind}-{m}" for m in ("w", "r", "wo"))
-        lines.append(
-            f"| {w} faster than {wo} | {pct(time_ms(a, w), time_ms(a, wo))} | {pct(time_ms(b, w), time_ms(b, wo))} "
-            f"| {verdict([time_ms(x, w) < time_ms(x, wo) for x in seqs])} |"
-        )
+        lines.append(f"| {w} faster than {wo} | {pct(time_ms(a, w), time_ms(a, wo))} | {pct(time_ms(b, w), time_ms(b, wo))} | {verdict([time_ms(x, w) < time_ms(x, wo) for x in seqs])} |")
     for kind in ("P", "PL"):
         w, r, wo = (f"{kind}-{m}" for m in ("w", "r", "wo"))
         cells = [f"RMSE {rmse(x, w):.2f} vs {rmse(x, r):.2f} / {rmse(x, wo):.2f}" for x in seqs]

@@ -29,15 +29,15 @@ import sys
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from app.serve_command import DEFAULT_DURATION_S  # noqa: E402
-from backend.pipeline.factory import EngineConfig, make_engine  # noqa: E402
-from backend.optim.variant import VARIANTS  # noqa: E402
-from backend.pipeline.snapshot import Snapshot  # noqa: E402
+from app.serve_command import DEFAULT_DURATION_S
+from backend.optim.variant import VARIANTS
+from backend.pipeline.factory import EngineConfig, make_engine
+from backend.pipeline.snapshot import Snapshot
 
 
 def window_rmse_cm(snapshot: Snapshot) -> float:
@@ -66,7 +66,7 @@ def main() -> None:
     parser.add_argument("--from-start", action="store_true", help="run every variant from keyframe 0 instead of switching on the last window")
     args = parser.parse_args()
 
-    def replay(variant: str = args.variant):  # noqa: ANN202
+    def replay(variant: str = args.variant):
         engine = make_engine(EngineConfig(scene=args.scene, variant=variant, seed=args.seed, duration_s=DEFAULT_DURATION_S, interactive=True))  # as `coplanar serve`
         for _ in range(args.keyframes):
             snapshot = engine.step()

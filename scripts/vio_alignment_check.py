@@ -31,15 +31,15 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small dense solves, as the tests run them
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-from backend.data.motion import GRAVITY_WORLD, add_imu_noise  # noqa: E402
-from backend.data.scenes import SCENE_NAMES, builtin_scene  # noqa: E402
-from backend.data.synthetic import SequenceSettings, SyntheticSequence  # noqa: E402
-from backend.eval.vio import visual_keyframes  # noqa: E402
-from backend.vio.alignment import AlignmentSettings, align_visual_inertial  # noqa: E402
+from backend.data.motion import GRAVITY_WORLD, add_imu_noise
+from backend.data.scenes import SCENE_NAMES, builtin_scene
+from backend.data.synthetic import SequenceSettings, SyntheticSequence
+from backend.eval.vio import visual_keyframes
+from backend.vio.alignment import AlignmentSettings, align_visual_inertial
 
 VISUAL_SCALE = 0.37
 KEYFRAME_RATE_HZ = 10.0
@@ -133,7 +133,8 @@ def _f(x: float, digits: int) -> str:
 
 def table(summary: dict) -> str:
     lines = [
-        "| scene | speed | s | accel rms m/s² | success | gravity err ° med / max | gyro bias err % med / max | gyro bias err rad/s med | scale err % med / max | scale err % med, all runs | most frequent rejection |",
+        "| scene | speed | s | accel rms m/s² | success | gravity err ° med / max | gyro bias err % med / max | "
+        "gyro bias err rad/s med | scale err % med / max | scale err % med, all runs | most frequent rejection |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for key, s in summary.items():

@@ -25,8 +25,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from euroc_table import add_no_doc_option, publish  # noqa: E402
-from vio_table import _f, run_one  # noqa: E402
+from euroc_table import add_no_doc_option, publish
+from vio_table import _f, run_one
 
 SPEED = 2.0
 FPS = 20.0  # the rendered scenes' camera rate
@@ -35,9 +35,11 @@ FPS = 20.0  # the rendered scenes' camera rate
 def row(r: dict, *, seconds: float) -> str:
     """One table row from a run's record."""
     init = r["init_time_s"]
-    return (f"| {r['seed']} | {r['scene']} | {r['variant']} | {_f(init, 2) if init is not None else 'not by ' + format(seconds, 'g') + ' s'} | {r['lost_frames']} | "
-            f"{r['restarts']} | {r['reinitializations']} | {_f(r['gravity_error_refined_deg'])} | {_f(r['bias_gyro_error_refined_pct'], 1)} | "
-            f"{_f(r['ate_after_init_cm'])} | {_f(r['ate_rmse_cm'])} |")
+    return (
+        f"| {r['seed']} | {r['scene']} | {r['variant']} | {_f(init, 2) if init is not None else 'not by ' + format(seconds, 'g') + ' s'} | {r['lost_frames']} | "
+        f"{r['restarts']} | {r['reinitializations']} | {_f(r['gravity_error_refined_deg'])} | {_f(r['bias_gyro_error_refined_pct'], 1)} | "
+        f"{_f(r['ate_after_init_cm'])} | {_f(r['ate_rmse_cm'])} |"
+    )
 
 
 def main() -> int:
@@ -60,11 +62,22 @@ def main() -> int:
             for variant in args.variants.split(","):
                 m = run_one(scene, variant, "vio", duration=30.0, speed=SPEED, extra=("--seed", seed, *(("--frames", str(frames)) if args.seconds < 30.0 else ())))
                 v = m["vio"]
-                runs.append({"seed": int(seed), "scene": scene, "variant": variant, "initialized": v["initialized"], "init_time_s": v["init_time_s"] if v["initialized"] else None,
-                             "lost_frames": m["lost_frames"], "reinitializations": m["reinitializations"],
-                             "restarts": sum("starting again" in msg for msg in m["messages"]),
-                             "ate_after_init_cm": v.get("ate_after_init_cm"), "ate_rmse_cm": m["ate_rmse_cm"],
-                             "gravity_error_refined_deg": v.get("gravity_error_refined_deg"), "bias_gyro_error_refined_pct": v.get("bias_gyro_error_refined_pct")})
+                runs.append(
+                    {
+                        "seed": int(seed),
+                        "scene": scene,
+                        "variant": variant,
+                        "initialized": v["initialized"],
+                        "init_time_s": v["init_time_s"] if v["initialized"] else None,
+                        "lost_frames": m["lost_frames"],
+                        "reinitializations": m["reinitializations"],
+                        "restarts": sum("starting again" in msg for msg in m["messages"]),
+                        "ate_after_init_cm": v.get("ate_after_init_cm"),
+                        "ate_rmse_cm": m["ate_rmse_cm"],
+                        "gravity_error_refined_deg": v.get("gravity_error_refined_deg"),
+                        "bias_gyro_error_refined_pct": v.get("bias_gyro_error_refined_pct"),
+                    }
+                )
                 print(row(runs[-1], seconds=args.seconds), flush=True)
     rows = [row(r, seconds=args.seconds) for r in runs]
     ok = sum(r["initialized"] and r["init_time_s"] <= 3.0 for r in runs)
@@ -72,17 +85,19 @@ def main() -> int:
     mean_ate, median_ate = (statistics.mean(ates), statistics.median(ates)) if ates else (float("nan"), float("nan"))
     if not args.from_json:
         out.write_text(json.dumps({"speed": SPEED, "seconds": args.seconds, "runs": runs}, indent=2) + "\n")
-    body = "\n".join([
-        f"The table's paths (seed 0) and other random paths through the rendered scenes (`--seed`), the first {args.seconds:g} s at {SPEED:g}× speed, one run each "
-        f"(`.venv/bin/python scripts/vio_start_check.py`): the first initialization (s), lost frames, restarts of the start "
-        f"(too few features followed from its first keyframe), re-initializations, gravity / gyroscope bias errors after the refinement (°, % of the true bias), "
-        f"and the ATE after SE(3) alignment from the initialization on and over all frames (cm). "
-        f"**{ok} of {len(runs)} initialize within 3 s**; ATE from the initialization: mean {mean_ate:.2f}, median {median_ate:.2f} cm.",
-        "",
-        "| seed | scene | variant | init. s | lost | restarts | re-init. | gravity err. ° | gyro bias err. % | ATE from init. | ATE all frames |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-        *rows,
-    ])
+    body = "\n".join(
+        [
+            f"The table's paths (seed 0) and other random paths through the rendered scenes (`--seed`), the first {args.seconds:g} s at {SPEED:g}× speed, one run each "
+            f"(`.venv/bin/python scripts/vio_start_check.py`): the first initialization (s), lost frames, restarts of the start "
+            f"(too few features followed from its first keyframe), re-initializations, gravity / gyroscope bias errors after the refinement (°, % of the true bias), "
+            f"and the ATE after SE(3) alignment from the initialization on and over all frames (cm). "
+            f"**{ok} of {len(runs)} initialize within 3 s**; ATE from the initialization: mean {mean_ate:.2f}, median {median_ate:.2f} cm.",
+            "",
+            "| seed | scene | variant | init. s | lost | restarts | re-init. | gravity err. ° | gyro bias err. % | ATE from init. | ATE all frames |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
+            *rows,
+        ]
+    )
     return publish(None, body, json_name="", block="vio-start", write_doc=not args.no_doc)
 
 

@@ -26,9 +26,10 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from app import cli  # noqa: E402
-from euroc_table import add_no_doc_option, publish  # noqa: E402
-from backend.optim.variant import VARIANTS  # noqa: E402
+from euroc_table import add_no_doc_option, publish
+
+from app import cli
+from backend.optim.variant import VARIANTS
 
 
 def run_one(scene: str, variant: str, mode: str, *, duration: float, speed: float, extra: tuple[str, ...] = ()) -> dict:
@@ -87,19 +88,23 @@ def main() -> int:
     if not args.from_json:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps({"duration_s": args.duration, "speed": args.speed, "runs": results}, indent=2) + "\n")
-    body = "\n".join([
-        f"Rendered scenes at {args.speed:g}× speed, {args.duration:g} s, seed 0, one run each (`.venv/bin/python scripts/vio_table.py`; "
-        "VIO with the learned segmenter, stereo with the geometric one, each its default). ATE over every tracked frame with ground truth "
-        "(cm; VIO: the frames from its first initialization on, after SE(3) and Sim(3) alignment, and all frames after SE(3) alignment, "
-        "which includes the frames of a failed start that never got a metric scale), the Sim(3) scale error of VIO from the initialization on (%), the initialization "
-        "(the first one: time from the first frame, s; gravity direction error of the alignment / after the refinement by the windows with IMU factors, °; "
-        "scale error of the alignment, %; gyroscope bias error of the alignment / after the refinement, % of the true bias; both refined figures at the initialization keyframe as the windows left it), VIO's lost frames / re-initializations, "
-        "mean total time per frame (ms, this 2-core VM), and the stereo pipeline on the same frames.",
-        "",
-        "| scene | variant | VIO ATE SE(3) | VIO ATE Sim(3) | VIO ATE all frames | scale err. % | init. s | gravity err. ° | init. scale err. % | gyro bias err. % | lost / re-init. | VIO ms/frame | stereo ATE SE(3) | stereo ms/frame |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-        *rows,
-    ])
+    body = "\n".join(
+        [
+            f"Rendered scenes at {args.speed:g}× speed, {args.duration:g} s, seed 0, one run each (`.venv/bin/python scripts/vio_table.py`; "
+            "VIO with the learned segmenter, stereo with the geometric one, each its default). ATE over every tracked frame with ground truth "
+            "(cm; VIO: the frames from its first initialization on, after SE(3) and Sim(3) alignment, and all frames after SE(3) alignment, "
+            "which includes the frames of a failed start that never got a metric scale), the Sim(3) scale error of VIO from the initialization on (%), the initialization "
+            "(the first one: time from the first frame, s; gravity direction error of the alignment / after the refinement by the windows with IMU factors, °; "
+            "scale error of the alignment, %; gyroscope bias error of the alignment / after the refinement, % of the true bias; "
+            "both refined figures at the initialization keyframe as the windows left it), VIO's lost frames / re-initializations, "
+            "mean total time per frame (ms, this 2-core VM), and the stereo pipeline on the same frames.",
+            "",
+            "| scene | variant | VIO ATE SE(3) | VIO ATE Sim(3) | VIO ATE all frames | scale err. % | init. s | gravity err. "
+            "° | init. scale err. % | gyro bias err. % | lost / re-init. | VIO ms/frame | stereo ATE SE(3) | stereo ms/frame |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            *rows,
+        ]
+    )
     return publish(None, body, json_name="", block="vio-table", write_doc=not args.no_doc)
 
 

@@ -37,8 +37,8 @@ _Z = np.array([0.0, 0.0, 1.0])
 
 @dataclasses.dataclass(frozen=True)
 class Sample:
-    image: np.ndarray    # (INPUT_H, INPUT_W) uint8
-    labels: np.ndarray   # (OUTPUT_H, OUTPUT_W) int16
+    image: np.ndarray  # (INPUT_H, INPUT_W) uint8
+    labels: np.ndarray  # (OUTPUT_H, OUTPUT_W) int16
     normals: np.ndarray  # (3, OUTPUT_H, OUTPUT_W) float16, camera frame, zero where unknown
 
 
@@ -104,8 +104,12 @@ def random_room(rng: np.random.Generator, name: str, *, leaning: bool = False) -
         missing = set(rng.choice([2, 3, 4, 5], size=int(rng.integers(1, 4)), replace=False).tolist()) | {1}
         rects = [r for r in rects if r.plane_id not in missing]
     present = {r.plane_id for r in rects}
-    walls = [(2, np.array([X, 0, 0]), np.array([-1.0, 0, 0]), Y), (3, np.array([-X, 0, 0]), np.array([1.0, 0, 0]), Y),
-             (4, np.array([0, Y, 0]), np.array([0, -1.0, 0]), X), (5, np.array([0, -Y, 0]), np.array([0, 1.0, 0]), X)]
+    walls = [
+        (2, np.array([X, 0, 0]), np.array([-1.0, 0, 0]), Y),
+        (3, np.array([-X, 0, 0]), np.array([1.0, 0, 0]), Y),
+        (4, np.array([0, Y, 0]), np.array([0, -1.0, 0]), X),
+        (5, np.array([0, -Y, 0]), np.array([0, 1.0, 0]), X),
+    ]
     walls = [w for w in walls if w[0] in present] or walls[:0]
     for k in range(int(rng.integers(0, 7)) if walls else 0):  # decals share their wall's plane id
         pid, base, n, half = walls[int(rng.integers(len(walls)))]
@@ -139,17 +143,25 @@ def random_room(rng: np.random.Generator, name: str, *, leaning: bool = False) -
             rects.append(facing_rectangle(centre, normal, (w, length), tex(400 + k), next_id))
             next_id += 1
     spheres = tuple(
-        Sphere(np.array([rng.uniform(-X + 0.5, X - 0.5), rng.uniform(-Y + 0.5, Y - 0.5), rng.uniform(0.2, 1.5)]), float(rng.uniform(0.15, 0.45)),
-               shade=float(rng.uniform(60, 220)), pattern_cells=int(rng.integers(4, 14)))
+        Sphere(
+            np.array([rng.uniform(-X + 0.5, X - 0.5), rng.uniform(-Y + 0.5, Y - 0.5), rng.uniform(0.2, 1.5)]),
+            float(rng.uniform(0.15, 0.45)),
+            shade=float(rng.uniform(60, 220)),
+            pattern_cells=int(rng.integers(4, 14)),
+        )
         for _ in range(int(rng.integers(0, 3)))
     )
     cylinders = tuple(
-        Cylinder(np.array([rng.uniform(-X + 0.5, X - 0.5), rng.uniform(-Y + 0.5, Y - 0.5)]), float(rng.uniform(0.05, 0.35)), (0.0, float(rng.uniform(0.5, 2.2))),
-                 shade=float(rng.uniform(60, 220)), pattern_cells=int(rng.integers(4, 14)))
+        Cylinder(
+            np.array([rng.uniform(-X + 0.5, X - 0.5), rng.uniform(-Y + 0.5, Y - 0.5)]),
+            float(rng.uniform(0.05, 0.35)),
+            (0.0, float(rng.uniform(0.5, 2.2))),
+            shade=float(rng.uniform(60, 220)),
+            pattern_cells=int(rng.integers(4, 14)),
+        )
         for _ in range(int(rng.integers(0, 4)))
     )
-    return Scene(name=name, rectangles=tuple(rects), spheres=spheres, cylinders=cylinders,
-                 camera_region=(np.array([0.0, 0.0, 1.4]), np.array([X - 0.6, Y - 0.6, 0.5])))
+    return Scene(name=name, rectangles=tuple(rects), spheres=spheres, cylinders=cylinders, camera_region=(np.array([0.0, 0.0, 1.4]), np.array([X - 0.6, Y - 0.6, 0.5])))
 
 
 def random_pose(rng: np.random.Generator, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -176,8 +188,7 @@ def rendered_samples(seed: int, *, layouts: int, views_per_layout: int, leaning:
         scene = random_room(rng, f"random-{seed}-{k}", leaning=leaning)
         for _ in range(views_per_layout):
             R, t = random_pose(rng, scene)
-            view = render_view(scene, CAMERA, R, t, gain=float(rng.uniform(0.55, 1.45)), blur_sigma_px=float(rng.uniform(0, 1.5)),
-                               noise_sigma=float(rng.uniform(0, 6)), rng=rng)
+            view = render_view(scene, CAMERA, R, t, gain=float(rng.uniform(0.55, 1.45)), blur_sigma_px=float(rng.uniform(0, 1.5)), noise_sigma=float(rng.uniform(0, 6)), rng=rng)
             labels = to_output_labels(np.where(view.plane_id == NON_PLANAR_ID, NON_PLANAR, view.plane_id).astype(np.int16))
             out.append(Sample(to_input(view.image), labels, normal_image(labels, camera_normals(scene, R, t))))
     return out
@@ -198,7 +209,7 @@ def real_samples(folder: pathlib.Path, *, every: int = 2, min_share: float = 0.0
     return out
 
 
-def pseudo_labelled(left: np.ndarray, masks, *, min_share: float = 0.03) -> Sample:  # noqa: ANN001
+def pseudo_labelled(left: np.ndarray, masks, *, min_share: float = 0.03) -> Sample:
     """A real image with the geometric segmenter's `masks` (`PlaneMasks` with fitted planes)
     as labels: its instances covering at least `min_share` of the image, with their normals
     turned towards the camera; everything else is IGNORE."""

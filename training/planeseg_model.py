@@ -25,8 +25,12 @@ DELTA_D = 1.5
 
 def _block(c_in: int, c_out: int, stride: int) -> nn.Sequential:
     return nn.Sequential(
-        nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True),
-        nn.Conv2d(c_out, c_out, 3, padding=1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True),
+        nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1, bias=False),
+        nn.BatchNorm2d(c_out),
+        nn.ReLU(inplace=True),
+        nn.Conv2d(c_out, c_out, 3, padding=1, bias=False),
+        nn.BatchNorm2d(c_out),
+        nn.ReLU(inplace=True),
     )
 
 
@@ -38,8 +42,8 @@ class PlaneNet(nn.Module):
     def __init__(self, width: int = 16, *, normals: bool = False) -> None:
         super().__init__()
         w = width
-        self.enc1 = _block(1, w, 2)          # 1/2
-        self.enc2 = _block(w, 2 * w, 2)      # 1/4
+        self.enc1 = _block(1, w, 2)  # 1/2
+        self.enc2 = _block(w, 2 * w, 2)  # 1/4
         self.enc3 = _block(2 * w, 4 * w, 2)  # 1/8
         self.enc4 = _block(4 * w, 6 * w, 2)  # 1/16
         self.dec3 = _block(6 * w + 4 * w, 4 * w, 1)
@@ -103,8 +107,9 @@ def normal_loss(normal: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (1.0 - cos[known]).mean()
 
 
-def loss(mask_logit: torch.Tensor, embedding: torch.Tensor, labels: torch.Tensor, normal: torch.Tensor | None = None,
-         normal_target: torch.Tensor | None = None, *, normal_weight: float = 1.0) -> tuple[torch.Tensor, dict[str, float]]:
+def loss(
+    mask_logit: torch.Tensor, embedding: torch.Tensor, labels: torch.Tensor, normal: torch.Tensor | None = None, normal_target: torch.Tensor | None = None, *, normal_weight: float = 1.0
+) -> tuple[torch.Tensor, dict[str, float]]:
     """BCE on pixels with a planar / non-planar label (-2: ignored) plus the embedding loss
     (plus `normal_weight` times the normal loss when normals are given)."""
     known = labels != -2

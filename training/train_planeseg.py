@@ -23,10 +23,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "training"))
 
-import numpy as np  # noqa: E402
-
-import planeseg_data  # noqa: E402
-from planeseg_data import INPUT_H, INPUT_W, OUTPUT_H, OUTPUT_W, Sample, real_samples, rendered_samples  # noqa: E402
+import numpy as np
+import planeseg_data
+from planeseg_data import INPUT_H, INPUT_W, OUTPUT_H, OUTPUT_W, Sample, real_samples, rendered_samples
 
 TRAIN_SEED_BASE = 1000
 DEFAULT_REAL = ROOT.parent / "shared" / "data" / "euroc_mh01_slice"
@@ -49,30 +48,36 @@ def build_data(args: argparse.Namespace) -> list[Sample]:
     return samples
 
 
-def export(model, path: pathlib.Path, *, meta: dict) -> None:  # noqa: ANN001
+def export(model, path: pathlib.Path, *, meta: dict) -> None:
     import torch
 
     model.eval()
     dummy = torch.zeros(1, 1, INPUT_H, INPUT_W)
     with_normals = model.normal_head is not None
     outputs = ["planar_logit", "embedding"] + (["normal"] if with_normals else [])
-    torch.onnx.export(model, (dummy,), str(path), input_names=["image"], output_names=outputs,
-                      opset_version=17, dynamo=False, do_constant_folding=True)
+    torch.onnx.export(model, (dummy,), str(path), input_names=["image"], output_names=outputs, opset_version=17, dynamo=False, do_constant_folding=True)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     contract = {
         "format": "coplanar plane-instance segmenter",
         "version": 1,
-        "input": {"name": "image", "shape": [1, 1, INPUT_H, INPUT_W], "dtype": "float32", "range": [0.0, 1.0],
-                  "preprocess": ("CLAHE, then " if meta.get("clahe") else "") + "grey image resized to the input size with area averaging, divided by 255",
-                  **({"clahe": meta["clahe"]} if meta.get("clahe") else {})},
+        "input": {
+            "name": "image",
+            "shape": [1, 1, INPUT_H, INPUT_W],
+            "dtype": "float32",
+            "range": [0.0, 1.0],
+            "preprocess": ("CLAHE, then " if meta.get("clahe") else "") + "grey image resized to the input size with area averaging, divided by 255",
+            **({"clahe": meta["clahe"]} if meta.get("clahe") else {}),
+        },
         "outputs": {
             "planar_logit": {"shape": [1, 1, OUTPUT_H, OUTPUT_W], "meaning": "logit of 'this pixel lies on a plane'"},
             "embedding": {"shape": [1, meta["embed_dim"], OUTPUT_H, OUTPUT_W], "meaning": "per-pixel embedding, instances by mean shift"},
-            **({"normal": {"shape": [1, 3, OUTPUT_H, OUTPUT_W], "meaning": "surface normal, left camera frame (x right, y down, z forward), towards the camera, not normalized"}}
-               if with_normals else {}),
+            **(
+                {"normal": {"shape": [1, 3, OUTPUT_H, OUTPUT_W], "meaning": "surface normal, left camera frame (x right, y down, z forward), towards the camera, not normalized"}}
+                if with_normals
+                else {}
+            ),
         },
-        "clustering": {"bandwidth": meta["delta_v"] * 2.0, "delta_v": meta["delta_v"], "delta_d": meta["delta_d"],
-                       **({"normal_weight": meta["cluster_normal_weight"]} if with_normals else {})},
+        "clustering": {"bandwidth": meta["delta_v"] * 2.0, "delta_v": meta["delta_v"], "delta_d": meta["delta_d"], **({"normal_weight": meta["cluster_normal_weight"]} if with_normals else {})},
         "sha256": digest,
         "training": meta,
     }
@@ -85,20 +90,25 @@ def main() -> int:
     p.add_argument("--layouts", type=int, default=300, help="random rooms rendered (multiple of 25)")
     p.add_argument("--views", type=int, default=8, help="views per room")
     p.add_argument("--real", type=pathlib.Path, default=DEFAULT_REAL, help="EuRoC folder for pseudo-labels (skipped if absent)")
-    p.add_argument("--leaning", action=argparse.BooleanOptionalAction, default=False,
-                   help="rooms with panels leaning against the walls (see planeseg_data.random_room); tried once "
-                        "with --gamma 0.4, worse on held-out and real frames (README), so off by default")
+    p.add_argument(
+        "--leaning",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="rooms with panels leaning against the walls (see planeseg_data.random_room); tried once with --gamma 0.4, worse on held-out and real frames (README), so off by default",
+    )
     p.add_argument("--gamma", type=float, default=0.0, help="photometric augmentation: gamma drawn from exp(±gamma)")
-    p.add_argument("--clahe", action=argparse.BooleanOptionalAction, default=False,
-                   help="input preparation: CLAHE (clip 2, 8x8 tiles) before the area average, in training and (through the contract) at run time")
-    p.add_argument("--normals", action=argparse.BooleanOptionalAction, default=False,
-                   help="a third head predicting the surface normal (camera frame), trained with 1 - cos")
+    p.add_argument(
+        "--clahe", action=argparse.BooleanOptionalAction, default=False, help="input preparation: CLAHE (clip 2, 8x8 tiles) before the area average, in training and (through the contract) at run time"
+    )
+    p.add_argument("--normals", action=argparse.BooleanOptionalAction, default=False, help="a third head predicting the surface normal (camera frame), trained with 1 - cos")
     p.add_argument("--normal-weight", type=float, default=1.0, help="weight of the normal loss")
-    p.add_argument("--cluster-normal-weight", type=float, default=1.0,
-                   help="written into the contract: unit normals scaled by this join the embedding in mean shift")
-    p.add_argument("--v101-pairs", type=lambda v: [int(x) for x in v.split(",")], default=[],
-                   help="held-out check only, never for the shipped model: also train on these V1_01 test pairs (e.g. 0,1), "
-                        "pseudo-labelled by the geometric segmenter, and evaluate on the others")
+    p.add_argument("--cluster-normal-weight", type=float, default=1.0, help="written into the contract: unit normals scaled by this join the embedding in mean shift")
+    p.add_argument(
+        "--v101-pairs",
+        type=lambda v: [int(x) for x in v.split(",")],
+        default=[],
+        help="held-out check only, never for the shipped model: also train on these V1_01 test pairs (e.g. 0,1), pseudo-labelled by the geometric segmenter, and evaluate on the others",
+    )
     p.add_argument("--pairs-repeat", type=int, default=25, help="copies of each --v101-pairs image in the training set")
     p.add_argument("--real-every", type=int, default=1)
     p.add_argument("--real-repeat", type=int, default=2)
@@ -113,7 +123,6 @@ def main() -> int:
     planeseg_data.CLAHE = {"clip_limit": 2.0, "tiles": 8} if args.clahe else None
 
     import torch
-
     from planeseg_model import DELTA_D, DELTA_V, EMBED_DIM, PlaneNet, loss
 
     torch.manual_seed(args.seed)
@@ -177,11 +186,30 @@ def main() -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "command": "python training/train_planeseg.py " + " ".join(sys.argv[1:]),
-        "seed": args.seed, "layouts": args.layouts, **({"v101_pairs": args.v101_pairs, "pairs_repeat": args.pairs_repeat} if args.v101_pairs else {}), "leaning": args.leaning, "gamma": args.gamma, "clahe": planeseg_data.CLAHE, "views": args.views, "real": args.real.name if args.real and args.real.is_dir() else None,
-        "samples": len(samples), "epochs": args.epochs, "batch": args.batch, "lr": args.lr, "width": args.width,
-        "normals": args.normals, "normal_weight": args.normal_weight, "cluster_normal_weight": args.cluster_normal_weight,
-        "embed_dim": EMBED_DIM, "delta_v": DELTA_V, "delta_d": DELTA_D, "device": args.device, "threads": args.threads,
-        "data_s": round(t_data, 1), "train_s": round(t_train, 1), "torch": torch.__version__,
+        "seed": args.seed,
+        "layouts": args.layouts,
+        **({"v101_pairs": args.v101_pairs, "pairs_repeat": args.pairs_repeat} if args.v101_pairs else {}),
+        "leaning": args.leaning,
+        "gamma": args.gamma,
+        "clahe": planeseg_data.CLAHE,
+        "views": args.views,
+        "real": args.real.name if args.real and args.real.is_dir() else None,
+        "samples": len(samples),
+        "epochs": args.epochs,
+        "batch": args.batch,
+        "lr": args.lr,
+        "width": args.width,
+        "normals": args.normals,
+        "normal_weight": args.normal_weight,
+        "cluster_normal_weight": args.cluster_normal_weight,
+        "embed_dim": EMBED_DIM,
+        "delta_v": DELTA_V,
+        "delta_d": DELTA_D,
+        "device": args.device,
+        "threads": args.threads,
+        "data_s": round(t_data, 1),
+        "train_s": round(t_train, 1),
+        "torch": torch.__version__,
     }
     export(model, args.out, meta=meta)
     print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.2f} MB) and {args.out.with_suffix('.json').name}; data {t_data:.0f} s, training {t_train:.0f} s", flush=True)

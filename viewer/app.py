@@ -50,7 +50,9 @@ T = TypeVar("T")
 AB_OFF = "off"
 # The Segmenter menu: the oracle of rendered scenes reads the renderer's plane ids, and says so.
 SEGMENTER_LABELS: dict[SegmenterKind, str] = {
-    SegmenterKind.GEOMETRIC: "geometric", SegmenterKind.LEARNED: "learned", SegmenterKind.ORACLE: "oracle (ground truth)",
+    SegmenterKind.GEOMETRIC: "geometric",
+    SegmenterKind.LEARNED: "learned",
+    SegmenterKind.ORACLE: "oracle (ground truth)",
 }
 SHORTCUTS = "**keys**: space play/pause · → step · shift+← / shift+→ scrub · F frame all"
 
@@ -58,9 +60,7 @@ SHORTCUTS = "**keys**: space play/pause · → step · shift+← / shift+→ scr
 class Debugger:
     """Serve `engine` on `host:port` until :meth:`stop`."""
 
-    def __init__(
-        self, engine: Engine, *, host: str = "127.0.0.1", port: int = 8080, settings: ViewerSettings = ViewerSettings(), access: AccessSettings = AccessSettings()
-    ) -> None:
+    def __init__(self, engine: Engine, *, host: str = "127.0.0.1", port: int = 8080, settings: ViewerSettings = ViewerSettings(), access: AccessSettings = AccessSettings()) -> None:
         self.engine = engine
         self.settings = settings
         self.access = access
@@ -114,7 +114,10 @@ class Debugger:
         self.busy = self.status_line.busy
         with gui.add_folder("A/B run"):
             self.ab_variant = gui.add_dropdown("B variant", (AB_OFF, *VARIANT_NAMES), initial_value=AB_OFF)
-            self.ab_note = gui.add_markdown("A second engine runs the same input in lockstep from the state shown when B is chosen; its trajectory and newest camera are drawn in magenta, the differences are in the *Variants* tab.")
+            self.ab_note = gui.add_markdown(
+                "A second engine runs the same input in lockstep from the state shown when B is chosen; its "
+                "trajectory and newest camera are drawn in magenta, the differences are in the *Variants* tab."
+            )
         with gui.add_folder("View"):
             self.follow = gui.add_checkbox("Follow keyframe", initial_value=False)
             self.frame_button = gui.add_button("Frame all")
@@ -124,8 +127,13 @@ class Debugger:
             self.layer_boxes = {
                 name: gui.add_checkbox(label, initial_value=getattr(self.scene.layers, name))
                 for name, label in (
-                    ("cameras", "Cameras"), ("points", "Points"), ("lines", "Lines"), ("planes", "Planes"),
-                    ("infinite_planes", "Infinite planes"), ("inliers", "RANSAC in/outliers"), ("ground_truth", "Ground truth"),
+                    ("cameras", "Cameras"),
+                    ("points", "Points"),
+                    ("lines", "Lines"),
+                    ("planes", "Planes"),
+                    ("infinite_planes", "Infinite planes"),
+                    ("inliers", "RANSAC in/outliers"),
+                    ("ground_truth", "Ground truth"),
                     ("ab", "A/B run (B)"),
                 )
             }
@@ -173,6 +181,7 @@ class Debugger:
                 self.enqueue(Command.VARIANT, Variant.parse(self.variant.value))
 
         if self.segmenter is not None:
+
             @self.segmenter.on_update
             def _(event: viser.GuiEvent) -> None:
                 if event.client is not None:
@@ -455,10 +464,7 @@ class Debugger:
             shown = Shown(snapshot, variants=self.history.variants_at(snapshot.keyframe), other=other, ab_on=self.engine_b is not None, source=self.engine.source)
             for tab in self.tabs:
                 tab.show(shown)
-            self.layer_note.content = (
-                f"*{snapshot.variant}: planes are detected and drawn faint for reference; this variant's optimizer does not use them*"
-                if not snapshot.variant.uses_planes else ""
-            )
+            self.layer_note.content = f"*{snapshot.variant}: planes are detected and drawn faint for reference; this variant's optimizer does not use them*" if not snapshot.variant.uses_planes else ""
         self.server.flush()
         self.request_plots()
         if self.dense is not None:

@@ -23,7 +23,7 @@ class DenseLayer:
     """Builds and shows the dense mesh of the requested snapshot (`request`); `note` (a GUI
     markdown handle) says what is drawn or why nothing is."""
 
-    def __init__(self, server: viser.ViserServer, source, note) -> None:  # noqa: ANN001
+    def __init__(self, server: viser.ViserServer, source, note) -> None:
         self.server = server
         self.source = source
         self.note = note
@@ -73,7 +73,7 @@ class DenseLayer:
                 continue
             try:
                 self._build(snapshot)
-            except Exception as error:  # noqa: BLE001 - a failed check is reported, never fatal to the debugger
+            except Exception as error:
                 self.note.content = f"*dense mesh: {' '.join(str(error).split())}*"
 
     def _build(self, snapshot: Snapshot) -> None:
@@ -92,7 +92,9 @@ class DenseLayer:
             self.server.scene.remove_by_name(NODE)
             self.note.content = f"*dense mesh of keyframe {snapshot.keyframe}: empty (no depth in range)*"
             return
-        self.server.scene.add_mesh_simple(NODE, vertices=vertices, faces=faces, color=MESH_COLOR, material="toon3", side="double", cast_shadow=False, receive_shadow=False)  # as the plane patches: lit without the environment map
+        self.server.scene.add_mesh_simple(
+            NODE, vertices=vertices, faces=faces, color=MESH_COLOR, material="toon3", side="double", cast_shadow=False, receive_shadow=False
+        )  # as the plane patches: lit without the environment map
         text = f"*dense mesh of keyframe {snapshot.keyframe} ({fusion.keyframes} keyframes at their estimated poses, {fusion.voxel_m * 100:.0f} cm voxels): {len(faces)} triangles"
         if isinstance(self.source, RenderedTruth):
             d = 100.0 * distance_to_planes(vertices, self.source.plane_table)

@@ -12,7 +12,12 @@ from viewer import panels
 
 
 def export(
-    client: viser.ClientHandle | None, what: str, snapshot: Snapshot | None, *, frame_trajectory: Callable[[], FrameTrajectory] | None, is_newest: bool,
+    client: viser.ClientHandle | None,
+    what: str,
+    snapshot: Snapshot | None,
+    *,
+    frame_trajectory: Callable[[], FrameTrajectory] | None,
+    is_newest: bool,
 ) -> None:
     """Send `what` of `snapshot` to `client`: "map" (one PLY), "files" (a zip of the map
     files 3D tools read), "keyframes" (TUM) or "trajectory" (every tracked frame, TUM;
@@ -41,6 +46,8 @@ def export(
     elif frame_trajectory is None or not is_newest:
         # Per-frame poses exist for the engine's current state only (the newest keyframe).
         client.send_file_download(f"{stem}_keyframes.txt", panels.tum_bytes(snapshot.estimate), save_immediately=True)
-        client.add_notification("Keyframe poses exported", "Every-frame poses exist only for the newest keyframe and engines that track frames; the keyframe poses were written.", auto_close_seconds=6.0)
+        client.add_notification(
+            "Keyframe poses exported", "Every-frame poses exist only for the newest keyframe and engines that track frames; the keyframe poses were written.", auto_close_seconds=6.0
+        )
     else:
         client.send_file_download(f"{stem}_trajectory.txt", panels.tum_bytes(frame_trajectory().estimate), save_immediately=True)

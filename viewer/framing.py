@@ -39,7 +39,7 @@ def snapshot_bounds(snapshot: Snapshot) -> Bounds:
         parts.append(p[dist <= max(3.0 * float(np.median(dist)), 0.1)])
     pts = np.concatenate(parts) if any(len(x) for x in parts) else np.zeros((1, 3))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    return Bounds(centre=0.5 * (lo + hi), radius=float(max(0.5 * np.linalg.norm(hi - lo), 0.5)))
+    return Bounds(centre=0.5 * (lo + hi), radius=max(0.5 * float(np.linalg.norm(hi - lo)), 0.5))
 
 
 def framing_pose(bounds: Bounds, *, fov_y: float, aspect: float, direction: np.ndarray = VIEW_DIRECTION) -> tuple[np.ndarray, np.ndarray]:

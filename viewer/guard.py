@@ -96,9 +96,7 @@ class Guard:
         self.server: viser.ViserServer | None = None
         self.installed = False
         self.policy = OriginPolicy(bind_host=host, allowed_origins=access.allowed_origins, share_origin=self._share_url)
-        self.inbound = InboundFilter(
-            find_control=self._find_control, is_command=self._is_command, share=access.share, max_upload_bytes=access.max_upload_bytes
-        )
+        self.inbound = InboundFilter(find_control=self._find_control, is_command=self._is_command, share=access.share, max_upload_bytes=access.max_upload_bytes)
         self._lock = threading.Lock()
         self._accepted = 0
         self._refused: collections.Counter[str] = collections.Counter()
@@ -175,7 +173,7 @@ class Guard:
         else:
             try:
                 verdict = self.inbound.check(client_id, frame)
-            except Exception as e:  # noqa: BLE001 - a fault in a check refuses the frame, never the connection
+            except Exception as e:
                 log.error("checking a frame from client %s failed (refused): %s: %s", client_id, type(e).__name__, e)
                 verdict = Verdict(False, "check failed", f"{type(e).__name__}: {e}")
         with self._lock:
@@ -241,12 +239,14 @@ def start_server(*, host: str, port: int, access: AccessSettings = AccessSetting
     if not guard.installed:
         server.stop()
         raise GuardNotInstalledError(
-            f"viser {viser.__version__} did not start its server through websockets.asyncio.server.serve: "
-            "viewer/guard.py was written against viser 1.1.1 and will not serve unchecked"
+            f"viser {viser.__version__} did not start its server through websockets.asyncio.server.serve: viewer/guard.py was written against viser 1.1.1 and will not serve unchecked"
         )
     missing = [
-        name for owner, name in (
-            (server._websock_server, "_live_connections"), (server.gui, "_gui_input_handle_from_uuid"), (server.gui, "_command_handle_from_uuid"),
+        name
+        for owner, name in (
+            (server._websock_server, "_live_connections"),
+            (server.gui, "_gui_input_handle_from_uuid"),
+            (server.gui, "_command_handle_from_uuid"),
         )
         if not hasattr(owner, name)
     ]

@@ -4,10 +4,13 @@ only: JPEG blurs a one-pixel pattern), and the keyframe's left image with its fe
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from backend.optim.hessian_image import render_hessian, render_side_by_side
 from backend.optim.structure import HessianStructure
+from backend.optim.variant import Variant
 from backend.pipeline.overlay import decode_keyframe_image
 from backend.pipeline.snapshot import KeyframeImage, Tracking
 
@@ -26,7 +29,7 @@ def hessian_image(structure: HessianStructure, *, max_px: int = IMAGE_PX) -> np.
     return np.asarray(render_hessian(structure.pattern, structure.groups, max_px=max_px, legend=False, focus=True))
 
 
-def compare_image(structures: dict[str, HessianStructure], *, max_px: int = 200) -> np.ndarray:
+def compare_image(structures: Mapping[Variant, HessianStructure], *, max_px: int = 200) -> np.ndarray:
     """The same window's patterns side by side, labelled with variant, items and params
     (two lines in 18 px type, readable at the panel's width)."""
     images = [render_hessian(s.pattern, s.groups, max_px=max_px, legend=False, focus=True) for s in structures.values()]
@@ -44,10 +47,7 @@ def pooled_note(structure: HessianStructure, *, max_px: int = IMAGE_PX) -> str:
     landmarks = sum(g.size for g in structure.groups if g.kind in ("points", "lines"))
     if structure.params <= max_px or landmarks == 0:
         return ""
-    return (
-        f"{landmarks:,} landmark params pooled into the middle band (a pixel is nonzero if any entry under it is); "
-        "cameras and planes keep up to one pixel per param"
-    )
+    return f"{landmarks:,} landmark params pooled into the middle band (a pixel is nonzero if any entry under it is); cameras and planes keep up to one pixel per param"
 
 
 def legend_markdown(structure: HessianStructure) -> str:
@@ -82,6 +82,5 @@ def tracking_markdown(tracking: Tracking | None) -> str:
     return (
         f"**tracking** since the previous keyframe: {plural(t.frames, 'frame')} · {t.lost_frames} lost · "
         f"{plural(t.reinitializations, 're-initialization')}  \n"
-        f"tracked on the keyframe: {plural(t.tracked_points, 'point')} · {plural(t.tracked_lines, 'line')}"
-        + (f"  \nkeyframe by: {t.keyframe_reason}" if t.keyframe_reason else "")
+        f"tracked on the keyframe: {plural(t.tracked_points, 'point')} · {plural(t.tracked_lines, 'line')}" + (f"  \nkeyframe by: {t.keyframe_reason}" if t.keyframe_reason else "")
     )

@@ -49,8 +49,13 @@ UPLOADS = (viser.GuiUploadButtonHandle,)
 FIELDS: dict[str, frozenset[str]] = {
     name: frozenset(wire_field_names(getattr(_messages, name)))
     for name in (
-        "GuiUpdateMessage", "CommandTriggerMessage", "ViewerCameraMessage", "ShareUrlRequest", "ShareUrlDisconnect",
-        "FileTransferStartUpload", "FileTransferPart",
+        "GuiUpdateMessage",
+        "CommandTriggerMessage",
+        "ViewerCameraMessage",
+        "ShareUrlRequest",
+        "ShareUrlDisconnect",
+        "FileTransferStartUpload",
+        "FileTransferPart",
     )
 }
 
@@ -80,11 +85,7 @@ def is_number(value: object) -> bool:
 
 
 def _finite_vector(value: object, length: int) -> bool:
-    return (
-        isinstance(value, (list, tuple))
-        and len(value) == length
-        and all(is_number(v) and math.isfinite(v) and abs(v) <= MAX_COORDINATE for v in value)
-    )
+    return isinstance(value, (list, tuple)) and len(value) == length and all(is_number(v) and math.isfinite(v) and abs(v) <= MAX_COORDINATE for v in value)
 
 
 def _short_text(value: object, limit: int = MAX_NAME_CHARS) -> bool:
@@ -195,7 +196,7 @@ class InboundFilter:
         if verdict.accepted:
             try:  # what viser will do with it; a frame it cannot decode never reaches it
                 _messages.Message.deserialize(frame)
-            except Exception as e:  # noqa: BLE001 - any failure of viser's decoder refuses the frame
+            except Exception as e:
                 return _refuse(kind, f"viser cannot decode it: {type(e).__name__}")
         return verdict
 
@@ -207,7 +208,7 @@ class InboundFilter:
 
     # ---------------------------------------------------------------- per type
 
-    def _check_GuiUpdateMessage(self, client_id: int, fields: dict[str, Any]) -> Verdict:  # noqa: N802
+    def _check_GuiUpdateMessage(self, client_id: int, fields: dict[str, Any]) -> Verdict:
         kind = "GuiUpdateMessage"
         uuid, updates = fields["uuid"], fields["updates"]
         if not _short_text(uuid) or not isinstance(updates, dict):
@@ -226,23 +227,23 @@ class InboundFilter:
         why = check_value(handle, updates["value"])
         return _accept(kind) if why is None else _refuse(kind, why, handle)
 
-    def _check_CommandTriggerMessage(self, client_id: int, fields: dict[str, Any]) -> Verdict:  # noqa: N802
+    def _check_CommandTriggerMessage(self, client_id: int, fields: dict[str, Any]) -> Verdict:
         uuid = fields["uuid"]
         if _short_text(uuid) and self._is_command(uuid):
             return _accept("CommandTriggerMessage")
         return _refuse("CommandTriggerMessage", "no such command")
 
-    def _check_ViewerCameraMessage(self, client_id: int, fields: dict[str, Any]) -> Verdict:  # noqa: N802
+    def _check_ViewerCameraMessage(self, client_id: int, fields: dict[str, Any]) -> Verdict:
         why = check_camera(fields)
         return _accept("ViewerCameraMessage") if why is None else _refuse("ViewerCameraMessage", why)
 
-    def _check_ShareUrlRequest(self, client_id: int, fields: dict[str, Any]) -> Verdict:  # noqa: N802
+    def _check_ShareUrlRequest(self, client_id: int, fields: dict[str, Any]) -> Verdict:
         return _accept("ShareUrlRequest") if self._share else _refuse("ShareUrlRequest", "sharing is off (serve --share turns it on)")
 
-    def _check_ShareUrlDisconnect(self, client_id: int, fields: dict[str, Any]) -> Verdict:  # noqa: N802
+    def _check_ShareUrlDisconnect(self, client_id: int, fields: dict[str, Any]) -> Verdict:
         return _accept("ShareUrlDisconnect") if self._share else _refuse("ShareUrlDisconnect", "sharing is off (serve --share turns it on)")
 
-    def _check_FileTransferStartUpload(self, client_id: int, fields: dict[str, Any]) -> Verdict:  # noqa: N802
+    def _check_FileTransferStartUpload(self, client_id: int, fields: dict[str, Any]) -> Verdict:
         kind = "FileTransferStartUpload"
         target, transfer = fields["source_component_uuid"], fields["transfer_uuid"]
         size, parts = fields["size_bytes"], fields["part_count"]
@@ -265,7 +266,7 @@ class InboundFilter:
             self._uploads[(client_id, transfer)] = _Upload(control=target, remaining_bytes=size, part_count=parts)
         return _accept(kind)
 
-    def _check_FileTransferPart(self, client_id: int, fields: dict[str, Any]) -> Verdict:  # noqa: N802
+    def _check_FileTransferPart(self, client_id: int, fields: dict[str, Any]) -> Verdict:
         kind = "FileTransferPart"
         upload = self._uploads.get((client_id, fields["transfer_uuid"])) if isinstance(fields["transfer_uuid"], str) else None
         if upload is None or fields["source_component_uuid"] != upload.control:

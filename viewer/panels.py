@@ -5,18 +5,32 @@ from __future__ import annotations
 
 import io
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
+from backend.optim.variant import Variant
 from backend.pipeline.snapshot import Snapshot, Trajectory
 from viewer import images
 
 #: Stage names of `OptimizationReport.timing_ms` as the report's timing table shows them.
 STAGE_LABELS = {
-    "load": "reading images", "point_dm": "point D&M", "tracking": "tracking", "line_dm": "line D&M", "mapping": "mapping",
-    "plane_seg": "plane segmentation", "plane_fit": "plane fitting", "setup": "problem set-up", "linearize": "linearize",
-    "solve": "solve", "update": "update", "optimization": "optimization", "culling": "culling", "image": "keyframe image",
-    "total": "total", "total_per_frame": "total per frame",
+    "load": "reading images",
+    "point_dm": "point D&M",
+    "tracking": "tracking",
+    "line_dm": "line D&M",
+    "mapping": "mapping",
+    "plane_seg": "plane segmentation",
+    "plane_fit": "plane fitting",
+    "setup": "problem set-up",
+    "linearize": "linearize",
+    "solve": "solve",
+    "update": "update",
+    "optimization": "optimization",
+    "culling": "culling",
+    "image": "keyframe image",
+    "total": "total",
+    "total_per_frame": "total per frame",
 }
 
 
@@ -69,10 +83,12 @@ def imu_markdown(s: Snapshot) -> str:
     def vec(x: np.ndarray, digits: int = 3) -> str:
         return "(" + ", ".join(_num(float(c), digits) for c in x) + ")"
 
-    rows = [f"| velocity (m/s, world) | {vec(v)} | {vec(imu.velocity_true[-1]) if imu.velocity_true is not None else '–'} |",
-            f"| accelerometer bias (m/s²) | {vec(b[:3], 4)} | {vec(imu.bias_true[-1][:3], 4) if imu.bias_true is not None else '–'} |",
-            f"| gyroscope bias (rad/s) | {vec(b[3:], 5)} | {vec(imu.bias_true[-1][3:], 5) if imu.bias_true is not None else '–'} |",
-            f"| gravity (m/s², world) | {vec(imu.gravity_world, 2)} | (0, 0, -9.81) |"]
+    rows = [
+        f"| velocity (m/s, world) | {vec(v)} | {vec(imu.velocity_true[-1]) if imu.velocity_true is not None else '–'} |",
+        f"| accelerometer bias (m/s²) | {vec(b[:3], 4)} | {vec(imu.bias_true[-1][:3], 4) if imu.bias_true is not None else '–'} |",
+        f"| gyroscope bias (rad/s) | {vec(b[3:], 5)} | {vec(imu.bias_true[-1][3:], 5) if imu.bias_true is not None else '–'} |",
+        f"| gravity (m/s², world) | {vec(imu.gravity_world, 2)} | (0, 0, -9.81) |",
+    ]
     init = ""
     rep = imu.report
     if imu.initialized:
@@ -81,13 +97,10 @@ def imu_markdown(s: Snapshot) -> str:
             if key in rep:
                 figures.append(f"{label} {_num(rep[key], 2)}{unit}")
         init = f"initialized at keyframe {imu.init_keyframe}: " + ", ".join(figures) + " (against the truth where known)\n\n"
-    return (
-        f"**IMU** ({'initialized' if imu.initialized else 'not initialized'}): {imu.status}\n\n{init}"
-        f"| | estimate | truth |\n|---|---|---|\n" + "\n".join(rows) + "\n\n"
-    )
+    return f"**IMU** ({'initialized' if imu.initialized else 'not initialized'}): {imu.status}\n\n{init}| | estimate | truth |\n|---|---|---|\n" + "\n".join(rows) + "\n\n"
 
 
-def variants_markdown(variants: dict[str, Snapshot], *, shown: Snapshot) -> str:
+def variants_markdown(variants: Mapping[Variant, Snapshot], *, shown: Snapshot) -> str:
     """The variants computed at one keyframe (the stepped one first; every other one
     re-optimized the same window from the state that step left), side by side."""
     if not variants:
@@ -122,10 +135,8 @@ def ab_markdown(a: Snapshot, b: Snapshot | None) -> str:
     ta, tb = a.estimate.timestamp_ns[-1], b.estimate.timestamp_ns[-1]
     same = "same frame" if ta == tb else f"different frames: A at {ta * 1e-9:.3f} s, B at {tb * 1e-9:.3f} s"
     gap = float(np.linalg.norm(a.estimate.t_world_camera[-1] - b.estimate.t_world_camera[-1])) * 100.0
-    return (
-        f"**A/B run** at keyframe {a.keyframe} ({same}); newest cameras {gap:.2f} cm apart\n\n"
-        f"| | A: {ra.variant} | B: {rb.variant} | B − A |\n|---|---|---|---|\n"
-        + "\n".join([
+    return f"**A/B run** at keyframe {a.keyframe} ({same}); newest cameras {gap:.2f} cm apart\n\n| | A: {ra.variant} | B: {rb.variant} | B − A |\n|---|---|---|---|\n" + "\n".join(
+        [
             row("RMSE (cm)", a.metrics.rmse_cm, b.metrics.rmse_cm),
             row("ATE (cm)", a.metrics.ate_cm, b.metrics.ate_cm),
             row("cost after", ra.final_cost, rb.final_cost, 1),
@@ -134,7 +145,7 @@ def ab_markdown(a: Snapshot, b: Snapshot | None) -> str:
             row("params", ra.params, rb.params, 0),
             row("points", len(a.points), len(b.points), 0),
             row("planes", len(a.planes), len(b.planes), 0),
-        ])
+        ]
     )
 
 

@@ -12,15 +12,14 @@ import numpy as np
 from backend.pipeline.snapshot import Snapshot
 
 #: Stages drawn in the time panel (keys of `OptimizationReport.timing_ms`) and their labels.
-STAGES = (("point_dm", "point D&M"), ("tracking", "tracking"), ("line_dm", "line D&M"), ("plane_seg", "plane seg."),
-          ("plane_fit", "plane fitting"), ("optimization", "optimization"))
+STAGES = (("point_dm", "point D&M"), ("tracking", "tracking"), ("line_dm", "line D&M"), ("plane_seg", "plane seg."), ("plane_fit", "plane fitting"), ("optimization", "optimization"))
 WIDTH_PX, HEIGHT_PX, DPI = 560, 760, 100
 
 
 def _series(snapshots: list[Snapshot]) -> dict[str, np.ndarray]:
     nan = float("nan")
 
-    def col(fn) -> np.ndarray:  # noqa: ANN001
+    def col(fn) -> np.ndarray:
         return np.array([fn(s) for s in snapshots], dtype=float)
 
     out = {
@@ -94,9 +93,13 @@ def plots_png(snapshots: list[Snapshot], *, current: int | None) -> bytes:
     twin.set_ylabel("planes", color="tab:purple")
 
     ax = axes[4]
-    for row, (key, label, color, marker) in enumerate((
-        ("lost", "frames lost", "tab:red", "v"), ("reinit", "map re-initialized", "black", "x"), ("accepted", "plane accepted", "tab:blue", "|"),
-    )):
+    for row, (key, label, color, marker) in enumerate(
+        (
+            ("lost", "frames lost", "tab:red", "v"),
+            ("reinit", "map re-initialized", "black", "x"),
+            ("accepted", "plane accepted", "tab:blue", "|"),
+        )
+    ):
         hit = d[key] > 0
         ax.scatter(x[hit], np.full(int(hit.sum()), row), color=color, marker=marker, s=22, label=label)
     ax.set_yticks([0, 1, 2], ["lost", "re-init.", "plane"], fontsize=7)

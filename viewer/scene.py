@@ -203,8 +203,16 @@ class SceneView:
                 handle.opacity = opacity
             return
         handle = self._server.scene.add_mesh_simple(
-            name, vertices.astype(np.float32), faces, color=color, opacity=opacity, material="toon3", side="double",
-            cast_shadow=False, receive_shadow=False, visible=self._visible(name),
+            name,
+            vertices.astype(np.float32),
+            faces,
+            color=color,
+            opacity=opacity,
+            material="toon3",
+            side="double",
+            cast_shadow=False,
+            receive_shadow=False,
+            visible=self._visible(name),
         )
         self._keep(name, handle)
 
@@ -240,7 +248,8 @@ class SceneView:
         opacity = PLANE_OPACITY_UNUSED if not snapshot.variant.uses_planes else PLANE_OPACITY
         names = set()
         for plane in snapshot.planes:
-            color = tuple(int(c) for c in plane_color(plane.id))
+            r, g, b = (int(c) for c in plane_color(plane.id))
+            color = (r, g, b)
             hull = plane.hull_world
             if len(hull) >= 3:
                 name = f"/map/planes/{plane.id}"

@@ -11,7 +11,7 @@ import dataclasses
 from collections.abc import Callable
 
 from backend.optim.variant import VARIANTS, Variant
-from backend.pipeline.engine import EndOfSequence, Engine
+from backend.pipeline.engine import EndOfSequence, Engine, EngineCheckpoint
 from backend.pipeline.snapshot import Snapshot
 from viewer.history import SnapshotHistory
 
@@ -33,7 +33,7 @@ class Session:
         self.keep = keep
         self.history = SnapshotHistory(keep)
         self._states_keyframe: int | None = None
-        self._states: dict[object, object] = {}
+        self._states: dict[object, EngineCheckpoint] = {}
         self.engine_b: Engine | None = None
         self.history_b: dict[int, Snapshot] = {}
 

@@ -14,7 +14,7 @@ class StatusLine:
     """The status markdown and the progress bar under the run controls. `busy` is set while
     the worker works (for tests and benchmarks)."""
 
-    def __init__(self, markdown: viser.GuiMarkdownHandle, progress: viser.GuiProgressBarHandle) -> None:
+    def __init__(self, markdown: viser.GuiMarkdownHandle, progress: viser.GuiInputHandle[float]) -> None:
         self.markdown = markdown
         self.progress = progress
         self.busy = threading.Event()

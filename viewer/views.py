@@ -66,7 +66,7 @@ class CameraViews:
         for client_id, client in self.server.get_clients().items():
             try:
                 self._update_view(client_id, client, snapshot, follow=follow)
-            except Exception as e:  # noqa: BLE001 - one tab's view must never stop the step for every tab
+            except Exception as e:
                 log.warning("view of client %s not updated: %s: %s", client_id, type(e).__name__, e)
 
     def _update_view(self, client_id: int, client: viser.ClientHandle, snapshot: Snapshot, *, follow: bool) -> None:

@@ -78,7 +78,7 @@ def make_folder(path: pathlib.Path | str) -> None:
 def _remove_stale_staging(folder: pathlib.Path) -> None:
     """Staging folders a killed process (SIGKILL, power loss) left in `folder`."""
     for entry in folder.glob(f"{STAGING_PREFIX}*"):
-        pid = entry.name[len(STAGING_PREFIX):]
+        pid = entry.name[len(STAGING_PREFIX) :]
         if not pid.isdigit() or int(pid) == os.getpid():
             continue
         try:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 
@@ -15,13 +17,13 @@ class RowBuffer:
     """
 
     def __init__(self, row_shape: tuple[int, ...], *, dtype: type = float, capacity: int = 64) -> None:
-        self._data = np.zeros((capacity, *row_shape), dtype=dtype)
+        self._data: np.ndarray = np.zeros((capacity, *row_shape), dtype=dtype)
         self._n = 0
 
     def __len__(self) -> int:
         return self._n
 
-    def append(self, row: np.ndarray) -> int:
+    def append(self, row: np.ndarray | float) -> int:
         """Append a row; returns its index."""
         if self._n == len(self._data):
             grown = np.zeros((2 * len(self._data), *self._data.shape[1:]), dtype=self._data.dtype)
@@ -31,10 +33,10 @@ class RowBuffer:
         self._n += 1
         return self._n - 1
 
-    def __getitem__(self, index: object) -> np.ndarray:
+    def __getitem__(self, index: Any) -> np.ndarray:
         return self._data[: self._n][index]
 
-    def __setitem__(self, index: object, value: np.ndarray) -> None:
+    def __setitem__(self, index: Any, value: np.ndarray | float | bool) -> None:
         self._data[: self._n][index] = value
 
     def prefix(self, n: int) -> np.ndarray:

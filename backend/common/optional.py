@@ -8,7 +8,7 @@ class MissingLibraryError(Exception):
     """open3d cannot be imported (a missing system library): one line, exit code 2."""
 
 
-def require_open3d():  # noqa: ANN201
+def require_open3d():
     """The open3d module, or a one-line :class:`MissingLibraryError` that says what to install."""
     try:
         import open3d
@@ -16,8 +16,7 @@ def require_open3d():  # noqa: ANN201
         text = " ".join(str(error).split())
         if "libusb" in text:
             raise MissingLibraryError(
-                "open3d cannot be imported: the system library libusb-1.0 is missing "
-                "(Debian: apt-get install libusb-1.0-0; `bash scripts/setup.sh` installs it when run as root)"
+                "open3d cannot be imported: the system library libusb-1.0 is missing (Debian: apt-get install libusb-1.0-0; `bash scripts/setup.sh` installs it when run as root)"
             ) from None
         raise MissingLibraryError(f"open3d cannot be imported: {text}") from None
     return open3d

@@ -274,8 +274,15 @@ def stereo_rectification(cam0: CameraCalibration, cam1: CameraCalibration) -> St
     if np.linalg.norm(t_cam1_cam0) < 1e-6:
         raise DatasetError(cam1.source, "cam1 is at the same place as cam0 (zero stereo baseline)")
     R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
-        cam0.K, cam0.distortion, cam1.K, cam1.distortion, size, R_cam1_cam0, t_cam1_cam0,
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0,
+        cam0.K,
+        cam0.distortion,
+        cam1.K,
+        cam1.distortion,
+        size,
+        R_cam1_cam0,
+        t_cam1_cam0,
+        flags=cv2.CALIB_ZERO_DISPARITY,
+        alpha=0.0,
     )
     # Horizontal rectification puts the baseline in P2[0, 3] = -f·b; a vertical one in P2[1, 3].
     baseline = -P2[0, 3] / P2[0, 0]
@@ -284,8 +291,13 @@ def stereo_rectification(cam0: CameraCalibration, cam1: CameraCalibration) -> St
     x0, y0 = cv2.initUndistortRectifyMap(cam0.K, cam0.distortion, R1, P1, size, cv2.CV_32FC1)
     x1, y1 = cv2.initUndistortRectifyMap(cam1.K, cam1.distortion, R2, P2, size, cv2.CV_32FC1)
     camera = PinholeCamera(
-        fx=float(P1[0, 0]), fy=float(P1[1, 1]), cx=float(P1[0, 2]), cy=float(P1[1, 2]),
-        width=size[0], height=size[1], baseline=float(baseline),
+        fx=float(P1[0, 0]),
+        fy=float(P1[1, 1]),
+        cx=float(P1[0, 2]),
+        cy=float(P1[1, 2]),
+        width=size[0],
+        height=size[1],
+        baseline=float(baseline),
     )
     T_cam0_rect0 = np.eye(4)
     T_cam0_rect0[:3, :3] = R1.T

@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from backend.common.native_output import native_stderr_silenced
 from backend.data.calibration import (
     CameraCalibration,
     ImuCalibration,
@@ -52,17 +53,27 @@ from backend.data.calibration import (
 from backend.data.errors import DatasetError, read_text
 from backend.data.motion import ImuData, ImuNoise
 from backend.geometry.camera import PinholeCamera
-from backend.common.native_output import native_stderr_silenced
 
 CAMERA_COLUMNS = ("timestamp", "filename")
 IMU_COLUMNS = ("timestamp", "w_RS_S_x", "w_RS_S_y", "w_RS_S_z", "a_RS_S_x", "a_RS_S_y", "a_RS_S_z")
 GROUND_TRUTH_COLUMNS = (
     "timestamp",
-    "p_RS_R_x", "p_RS_R_y", "p_RS_R_z",
-    "q_RS_w", "q_RS_x", "q_RS_y", "q_RS_z",
-    "v_RS_R_x", "v_RS_R_y", "v_RS_R_z",
-    "b_w_RS_S_x", "b_w_RS_S_y", "b_w_RS_S_z",
-    "b_a_RS_S_x", "b_a_RS_S_y", "b_a_RS_S_z",
+    "p_RS_R_x",
+    "p_RS_R_y",
+    "p_RS_R_z",
+    "q_RS_w",
+    "q_RS_x",
+    "q_RS_y",
+    "q_RS_z",
+    "v_RS_R_x",
+    "v_RS_R_y",
+    "v_RS_R_z",
+    "b_w_RS_S_x",
+    "b_w_RS_S_y",
+    "b_w_RS_S_z",
+    "b_a_RS_S_x",
+    "b_a_RS_S_y",
+    "b_a_RS_S_z",
 )
 GROUND_TRUTH_POSE_COLUMNS = 8  # a pose-only ground truth (timestamp, p, q) is accepted too
 QUATERNION_NORM_TOLERANCE = 1e-2
@@ -77,9 +88,9 @@ class GroundTruth:
     timestamp_ns: np.ndarray
     p_world_body: np.ndarray  # (M, 3)
     R_world_body: np.ndarray  # (M, 3, 3)
-    v_world: np.ndarray       # (M, 3)
-    gyro_bias: np.ndarray     # (M, 3)
-    accel_bias: np.ndarray    # (M, 3)
+    v_world: np.ndarray  # (M, 3)
+    gyro_bias: np.ndarray  # (M, 3)
+    accel_bias: np.ndarray  # (M, 3)
 
     def __len__(self) -> int:
         return int(self.timestamp_ns.shape[0])
@@ -223,6 +234,7 @@ class EurocDataset:
         return f"{self.root}/mav0/imu0/data.csv"
 
     def _no_imu_error(self) -> DatasetError:
+        assert self._no_imu is not None  # set whenever the IMU data is missing
         path, reason = self._no_imu
         return DatasetError(path, f"{reason}: IMU data is needed for VIO (stereo runs without it)")
 

@@ -47,9 +47,7 @@ def camera_sensor_yaml(camera: PinholeCamera, T_body_camera: np.ndarray, *, rate
         f"# {comment}\n"
         "sensor_type: camera\n"
         "comment: coplanar synthetic camera (rectified, undistorted)\n\n"
-        "# Sensor extrinsics wrt. the body-frame.\n"
-        + _matrix_yaml("T_BS", T_body_camera)
-        + "\n# Camera specific definitions.\n"
+        "# Sensor extrinsics wrt. the body-frame.\n" + _matrix_yaml("T_BS", T_body_camera) + "\n# Camera specific definitions.\n"
         f"rate_hz: {rate_hz:g}\n"
         f"resolution: [{camera.width}, {camera.height}]\n"
         "camera_model: pinhole\n"
@@ -65,9 +63,7 @@ def imu_sensor_yaml(noise: ImuNoise, *, rate_hz: float) -> str:
         "%YAML:1.0\n"
         "# coplanar synthetic IMU\n"
         "sensor_type: imu\n"
-        "comment: coplanar synthetic IMU, EuRoC noise model\n"
-        + _matrix_yaml("T_BS", np.eye(4))
-        + f"rate_hz: {rate_hz:g}\n\n"
+        "comment: coplanar synthetic IMU, EuRoC noise model\n" + _matrix_yaml("T_BS", np.eye(4)) + f"rate_hz: {rate_hz:g}\n\n"
         "# inertial sensor noise model parameters (static)\n"
         f"gyroscope_noise_density: {noise.gyroscope_noise_density:.6e}     # [ rad / s / sqrt(Hz) ]\n"
         f"gyroscope_random_walk: {noise.gyroscope_random_walk:.6e}       # [ rad / s^2 / sqrt(Hz) ]\n"

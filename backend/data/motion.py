@@ -112,7 +112,7 @@ class ImuData:
     def __len__(self) -> int:
         return int(self.timestamp_ns.shape[0])
 
-    def between(self, t0_ns: int, t1_ns: int) -> "ImuData":
+    def between(self, t0_ns: int, t1_ns: int) -> ImuData:
         """The samples with `t0_ns < t <= t1_ns`."""
         if t1_ns < t0_ns:
             raise ValueError(f"t1_ns {t1_ns} is before t0_ns {t0_ns}")
@@ -124,10 +124,10 @@ class ImuData:
 class ImuNoise:
     """Continuous-time noise densities, EuRoC `imu0/sensor.yaml` values by default."""
 
-    gyroscope_noise_density: float = 1.6968e-04      # rad / s / √Hz
-    gyroscope_random_walk: float = 1.9393e-05        # rad / s² / √Hz
-    accelerometer_noise_density: float = 2.0000e-3   # m / s² / √Hz
-    accelerometer_random_walk: float = 3.0000e-3     # m / s³ / √Hz
+    gyroscope_noise_density: float = 1.6968e-04  # rad / s / √Hz
+    gyroscope_random_walk: float = 1.9393e-05  # rad / s² / √Hz
+    accelerometer_noise_density: float = 2.0000e-3  # m / s² / √Hz
+    accelerometer_random_walk: float = 3.0000e-3  # m / s³ / √Hz
 
 
 def imu_samples(trajectory: SmoothTrajectory, *, start_ns: int, end_ns: int, rate_hz: float = 200.0) -> ImuData:
@@ -146,7 +146,9 @@ def imu_samples(trajectory: SmoothTrajectory, *, start_ns: int, end_ns: int, rat
     return ImuData(timestamp_ns=stamps[:-1], gyro=gyro, accel=accel)
 
 
-def add_imu_noise(imu: ImuData, rng: np.random.Generator, *, noise: ImuNoise = ImuNoise(), bias_gyro: np.ndarray | None = None, bias_accel: np.ndarray | None = None) -> tuple[ImuData, np.ndarray, np.ndarray]:
+def add_imu_noise(
+    imu: ImuData, rng: np.random.Generator, *, noise: ImuNoise = ImuNoise(), bias_gyro: np.ndarray | None = None, bias_accel: np.ndarray | None = None
+) -> tuple[ImuData, np.ndarray, np.ndarray]:
     """White noise plus random-walk biases (starting at the given biases, zero by default).
     Returns the noisy samples and the true biases per sample, gyro (N, 3) and accel (N, 3)."""
     n = len(imu)

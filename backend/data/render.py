@@ -50,13 +50,15 @@ def _clip_planes(camera: PinholeCamera) -> np.ndarray:
     m = _FRUSTUM_MARGIN_PX
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
     w1, h1 = camera.width - 1 + m, camera.height - 1 + m
-    return np.array([
-        [0.0, 0.0, 1.0, -NEAR_M],
-        [fx, 0.0, cx + m, 0.0],
-        [-fx, 0.0, w1 - cx, 0.0],
-        [0.0, fy, cy + m, 0.0],
-        [0.0, -fy, h1 - cy, 0.0],
-    ])
+    return np.array(
+        [
+            [0.0, 0.0, 1.0, -NEAR_M],
+            [fx, 0.0, cx + m, 0.0],
+            [-fx, 0.0, w1 - cx, 0.0],
+            [0.0, fy, cy + m, 0.0],
+            [0.0, -fy, h1 - cy, 0.0],
+        ]
+    )
 
 
 def clip_polygon(points: np.ndarray, planes: np.ndarray) -> np.ndarray:

@@ -218,10 +218,7 @@ def box_rectangles(centre_xy: tuple[float, float], size: tuple[float, float, flo
         ((cx, cy - sy / 2, zc), (0, -1, 0), (sx, sz)),
         ((cx, cy, z0 + sz), (0, 0, 1), (sx, sy)),
     ]
-    return [
-        facing_rectangle(np.array(c, float), np.array(n, float), s, Texture(kind, seed * 10 + k), first_plane_id + k)
-        for k, (c, n, s) in enumerate(faces)
-    ]
+    return [facing_rectangle(np.array(c, float), np.array(n, float), s, Texture(kind, seed * 10 + k), first_plane_id + k) for k, (c, n, s) in enumerate(faces)]
 
 
 def _room() -> Scene:
@@ -292,10 +289,9 @@ def _boxes() -> Scene:
     """A 16 × 16 m hall (open floor, low walls 2 m high at x, y = ±8, no ceiling) with boxes
     of several sizes around a free centre."""
     rects = [facing_rectangle(np.array([0, 0, 0.0]), _Z, (16.0, 16.0), Texture("checker", 21, 0.008), 0)]
-    for k, (c, n, kind) in enumerate([((8.0, 0, 1.0), (-1, 0, 0), "tiles"), ((-8.0, 0, 1.0), (1, 0, 0), "panels"),
-                                      ((0, 8.0, 1.0), (0, -1, 0), "panels"), ((0, -8.0, 1.0), (0, 1, 0), "tiles")]):
+    for k, (c, n, kind) in enumerate([((8.0, 0, 1.0), (-1, 0, 0), "tiles"), ((-8.0, 0, 1.0), (1, 0, 0), "panels"), ((0, 8.0, 1.0), (0, -1, 0), "panels"), ((0, -8.0, 1.0), (0, 1, 0), "tiles")]):
         rects.append(facing_rectangle(np.array(c), np.array(n, float), (16.0, 2.0), Texture(kind, 22 + k), 36 + k))
-    layout = [
+    layout: list[tuple[tuple[float, float], tuple[float, float, float], str]] = [
         ((3.5, 0.5), (0.8, 1.2, 1.0), "tiles"),
         ((-3.4, 2.6), (1.5, 1.0, 1.6), "poster"),
         ((0.5, -3.6), (1.0, 1.0, 0.5), "panels"),
@@ -305,8 +301,8 @@ def _boxes() -> Scene:
         ((4.5, -3.0), (0.5, 0.5, 0.5), "poster"),
     ]
     pid = 1
-    for k, (c, s, kind) in enumerate(layout):
-        rects += box_rectangles(c, s, kind=kind, seed=30 + k, first_plane_id=pid)
+    for k, (centre, size, kind) in enumerate(layout):
+        rects += box_rectangles(centre, size, kind=kind, seed=30 + k, first_plane_id=pid)
         pid += 5
     return Scene(
         name="boxes",
@@ -333,6 +329,7 @@ def builtin_scene(name: str = DEFAULT_SCENE) -> Scene:
 
 # ----------------------------------------------------------------------------- JSON
 
+
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
     """The JSON-able form of a scene:
 
@@ -348,16 +345,17 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
         "name": scene.name,
         "rectangles": [
             {
-                "p0": r.p0.tolist(), "u": r.u.tolist(), "v": r.v.tolist(), "size": list(r.size), "plane_id": r.plane_id,
+                "p0": r.p0.tolist(),
+                "u": r.u.tolist(),
+                "v": r.v.tolist(),
+                "size": list(r.size),
+                "plane_id": r.plane_id,
                 "texture": {"kind": r.texture.kind, "seed": r.texture.seed, "texel_m": r.texture.texel_m},
             }
             for r in scene.rectangles
         ],
         "spheres": [{"centre": s.centre.tolist(), "radius": s.radius, "shade": s.shade, "pattern_cells": s.pattern_cells} for s in scene.spheres],
-        "cylinders": [
-            {"centre_xy": c.centre_xy.tolist(), "radius": c.radius, "z_range": list(c.z_range), "shade": c.shade, "pattern_cells": c.pattern_cells}
-            for c in scene.cylinders
-        ],
+        "cylinders": [{"centre_xy": c.centre_xy.tolist(), "radius": c.radius, "z_range": list(c.z_range), "shade": c.shade, "pattern_cells": c.pattern_cells} for c in scene.cylinders],
         "camera_region": None if scene.camera_region is None else {"centre": scene.camera_region[0].tolist(), "half_extent": scene.camera_region[1].tolist()},
     }
 
@@ -424,10 +422,16 @@ def scene_from_dict(data: Any) -> Scene:
         if seed < 0:
             raise ValueError(f"{where}.texture.seed: must be >= 0")
         texture = Texture(kind, seed, _number(tex, "texel_m", f"{where}.texture", DEFAULT_TEXEL_M))
-        rects.append(Rectangle(
-            p0=_vector(r, "p0", 3, where), u=_vector(r, "u", 3, where), v=_vector(r, "v", 3, where),
-            size=(float(size[0]), float(size[1])), texture=texture, plane_id=_integer(r, "plane_id", where),
-        ))
+        rects.append(
+            Rectangle(
+                p0=_vector(r, "p0", 3, where),
+                u=_vector(r, "u", 3, where),
+                v=_vector(r, "v", 3, where),
+                size=(float(size[0]), float(size[1])),
+                texture=texture,
+                plane_id=_integer(r, "plane_id", where),
+            )
+        )
     if not rects:
         raise ValueError("rectangles: expected at least one rectangle")
     spheres = []
@@ -438,7 +442,9 @@ def scene_from_dict(data: Any) -> Scene:
     for i, c in enumerate(_objects(data, "cylinders")):
         where = f"cylinders[{i}]"
         z = _vector(c, "z_range", 2, where)
-        cylinders.append(Cylinder(_vector(c, "centre_xy", 2, where), _number(c, "radius", where), (float(z[0]), float(z[1])), _number(c, "shade", where, 150.0), _integer(c, "pattern_cells", where, 12)))
+        cylinders.append(
+            Cylinder(_vector(c, "centre_xy", 2, where), _number(c, "radius", where), (float(z[0]), float(z[1])), _number(c, "shade", where, 150.0), _integer(c, "pattern_cells", where, 12))
+        )
     region = data.get("camera_region")
     camera_region = None
     if region is not None:

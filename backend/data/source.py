@@ -26,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 from collections.abc import Callable
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -79,12 +79,12 @@ class InertialSource(StereoSource, Protocol):
 class RenderedTruth(Protocol):
     """The exact truth of a rendered scene (module docstring)."""
 
-    plane_table: object  # plane id -> (n, d)
+    plane_table: dict[int, np.ndarray]  # plane id -> (n, d)
     trajectory: object  # continuous body trajectory: position, rotation, velocity at times (s)
     bias_gyro: np.ndarray  # (M,) per IMU sample, rad/s
     bias_accel: np.ndarray  # (M,) per IMU sample, m/s²
 
-    def views(self, index: int) -> tuple[object, object]: ...  # left and right View (image, depth, plane ids)
+    def views(self, index: int) -> tuple[Any, Any]: ...  # left and right View (image, depth, plane ids)
 
     def left_depth(self, index: int) -> np.ndarray: ...
 
@@ -117,7 +117,7 @@ def _open_scene_file(path: pathlib.Path) -> StereoSource:
     from backend.data.synthetic import SyntheticSequence
 
     try:
-        return SyntheticSequence(load_scene(path))  # type: ignore[return-value]
+        return SyntheticSequence(load_scene(path))
     except SceneFileError as e:
         raise DatasetError(e.path, e.reason) from None
 

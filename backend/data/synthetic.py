@@ -86,9 +86,7 @@ class SyntheticSequence:
         self.T_body_cam0 = T_BODY_CAM0
         rng = np.random.default_rng([settings.seed, 0xDA7A])
         centre, half = scene.camera_region if scene.camera_region is not None else (np.array([0.0, 0.0, 1.4]), np.array([1.0, 1.0, 0.2]))
-        self.trajectory = random_trajectory(
-            rng, centre=np.asarray(centre, float), half_extent=np.asarray(half, float), height=0.0, base_frequency_hz=BASE_FREQUENCY_HZ * settings.speed
-        )
+        self.trajectory = random_trajectory(rng, centre=np.asarray(centre, float), half_extent=np.asarray(half, float), height=0.0, base_frequency_hz=BASE_FREQUENCY_HZ * settings.speed)
         period_ns = int(round(1e9 / settings.camera_rate_hz))
         self.timestamps_ns = np.arange(0, int(settings.duration_s * 1e9) + 1, period_ns, dtype=np.int64)
         self.imu_true = imu_samples(self.trajectory, start_ns=0, end_ns=int(self.timestamps_ns[-1]), rate_hz=settings.imu_rate_hz)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -114,7 +114,7 @@ def checker(rng: np.random.Generator, shape: tuple[int, int], *, cell_px: int = 
     jitter = rng.uniform(-25, 25, (rows // cell_px + 1, cols // cell_px + 1)).astype(np.float32)
     img = np.where(parity == 0, a, b).astype(np.float32) + jitter[yy // cell_px, xx // cell_px]
     blotch = rng.normal(0.0, 1.0, (rows // 16 + 2, cols // 16 + 2)).astype(np.float32)
-    blotch = cv2.resize(blotch, (cols, rows), interpolation=cv2.INTER_CUBIC)
+    blotch = cv2.resize(blotch, (cols, rows), interpolation=cv2.INTER_CUBIC)  # type: ignore[assignment]  # float32 in, float32 out (OpenCV's stubs say any)
     img += 12.0 * blotch
     return _finish(img, rng)
 

@@ -37,7 +37,7 @@ class DenseSettings:
     margin_m: float = 0.5
 
 
-def keyframe_depth(source, index: int) -> np.ndarray:  # noqa: ANN001
+def keyframe_depth(source, index: int) -> np.ndarray:
     """Depth (H, W) float32 metres along the left camera's z of frame `index` (0: none): the
     renderer's depth where the source has it, else stereo semi-global matching."""
     if isinstance(source, RenderedTruth):
@@ -50,7 +50,7 @@ def keyframe_depth(source, index: int) -> np.ndarray:  # noqa: ANN001
 def stereo_depth(left: np.ndarray, right: np.ndarray, camera: PinholeCamera) -> np.ndarray:
     """Depth (H, W) float32 metres from a rectified uint8 pair by OpenCV's semi-global block
     matching (0 where no disparity)."""
-    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=64, blockSize=5, P1=8 * 25, P2=32 * 25, uniquenessRatio=10, speckleWindowSize=100, speckleRange=2)
+    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=64, blockSize=5, P1=8 * 25, P2=32 * 25, uniquenessRatio=10, speckleWindowSize=100, speckleRange=2)  # type: ignore[attr-defined]  # not in OpenCV's stubs
     disparity = sgbm.compute(left, right).astype(np.float32) / 16.0
     with np.errstate(divide="ignore"):
         depth = np.where(disparity > 0.5, camera.fx * camera.baseline / disparity, 0.0)
@@ -77,8 +77,11 @@ class DenseFusion:
         resolution = max(int(np.ceil(side / self.voxel_m)), 8)
         self.intrinsic = o3d.camera.PinholeCameraIntrinsic(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
         self.volume = o3d.pipelines.integration.UniformTSDFVolume(
-            length=resolution * self.voxel_m, resolution=resolution, sdf_trunc=settings.trunc_voxels * self.voxel_m,
-            color_type=o3d.pipelines.integration.TSDFVolumeColorType.NoColor, origin=lo,
+            length=resolution * self.voxel_m,
+            resolution=resolution,
+            sdf_trunc=settings.trunc_voxels * self.voxel_m,
+            color_type=o3d.pipelines.integration.TSDFVolumeColorType.NoColor,
+            origin=lo,
         )
         self.keyframes = 0
         self.time_ms = 0.0
@@ -96,7 +99,7 @@ class DenseFusion:
         self.keyframes += 1
         self.time_ms += 1e3 * (time.perf_counter() - t0)
 
-    def mesh(self):  # noqa: ANN201
+    def mesh(self):
         """The extracted triangle mesh (open3d, world frame, metres) with vertex normals."""
         mesh = self.volume.extract_triangle_mesh()
         mesh.compute_vertex_normals()
@@ -116,7 +119,9 @@ def map_bounds(p_world: np.ndarray, camera_centres_world: np.ndarray, *, margin_
     return np.stack([everything.min(axis=0) - margin_m, everything.max(axis=0) + margin_m])
 
 
-def fuse_keyframes(source, frames: np.ndarray, R_world_camera: np.ndarray, t_world_camera: np.ndarray, bounds_world: np.ndarray, *, settings: DenseSettings = DenseSettings(), depth_cache: dict | None = None) -> DenseFusion:  # noqa: ANN001
+def fuse_keyframes(
+    source, frames: np.ndarray, R_world_camera: np.ndarray, t_world_camera: np.ndarray, bounds_world: np.ndarray, *, settings: DenseSettings = DenseSettings(), depth_cache: dict | None = None
+) -> DenseFusion:
     """Fuse the keyframes at source frames `frames` (K,) at the poses (K, 3, 3), (K, 3) over
     `bounds_world` (2, 3) (:func:`map_bounds`)."""
     fusion = DenseFusion(source.camera, bounds_world, settings=settings)
@@ -140,7 +145,7 @@ def distance_to_planes(vertices_world: np.ndarray, planes: dict[int, np.ndarray]
     return np.min(np.abs(np.asarray(vertices_world, float) @ table[:, :3].T + table[:, 3]), axis=1)
 
 
-def keyframe_frames(source, timestamps_ns: np.ndarray) -> np.ndarray:  # noqa: ANN001
+def keyframe_frames(source, timestamps_ns: np.ndarray) -> np.ndarray:
     """The source frame index of each keyframe timestamp."""
     stamps = np.asarray(source.timestamps_ns, dtype=np.int64)
     return np.searchsorted(stamps, np.asarray(timestamps_ns, dtype=np.int64))

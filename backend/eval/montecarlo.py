@@ -18,9 +18,9 @@ from backend.geometry import plane as plane_geo
 from backend.geometry import so3
 from backend.geometry.se3 import Poses
 from backend.mapping.triangulation import triangulate_lines, triangulate_points
-from backend.optim.variant import VARIANTS, Variant
 from backend.optim.problem import SIGMA_REL_DEFAULT, DistancePrior, Observations, Odometry, PosePrior, ProblemData, build_problem
 from backend.optim.solver import SolveReport, optimize
+from backend.optim.variant import VARIANTS, Variant
 
 SIGMA_PX = 1.0
 SIGMA_ROT_RAD = np.deg2rad(1.0)
@@ -107,7 +107,10 @@ def make_problem_data(world: sequences.World, rng: np.random.Generator, *, noise
     R_i_j = np.swapaxes(R_i, 1, 2) @ R_init[1:]
     t_i_j = np.einsum("nji,nj->ni", R_i, t_init[1:] - t_init[:-1])
     odometry = Odometry(
-        i=np.arange(N - 1), j=np.arange(1, N), R_i_j=R_i_j, t_i_j=t_i_j,
+        i=np.arange(N - 1),
+        j=np.arange(1, N),
+        R_i_j=R_i_j,
+        t_i_j=t_i_j,
         sigma_rot=np.sqrt(2.0) * max(noise.rotation_rad, 1e-3 * SIGMA_ROT_RAD),
         sigma_pos=np.sqrt(2.0) * max(noise.position_m, 1e-3 * SIGMA_POS_M),
     )
@@ -209,7 +212,7 @@ def run_study(
     method: str = "gn",
     sigma_rel: float = SIGMA_REL_DEFAULT,
     on_run: Callable[[int], None] | None = None,
-) -> tuple[dict[str, VariantSummary], list[RunResult]]:
+) -> tuple[dict[Variant, VariantSummary], list[RunResult]]:
     """Run the study: the world of `sequence` (landmarks from `seed`), `runs` noise draws
     (run r uses seed `(seed, r)`), every variant on each draw's identical data; `sigma_rel`
     is the -r residuals' relative standard deviation (`ProblemData.sigma_rel`)."""

@@ -4,6 +4,8 @@ functions of the engine's trajectories and reports (no files)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from backend.eval.trajectory import ate_rmse, relative_pose_error, translational_rmse, umeyama_alignment
@@ -12,7 +14,7 @@ PER_FRAME_STAGES = ("point_dm", "tracking", "load")  # timed per frame within a 
 RPE_DELTA_M = 1.0  # path length per relative-pose-error pair, metres
 
 
-def trajectory_metrics(estimate, ground_truth) -> tuple[dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:  # noqa: ANN001
+def trajectory_metrics(estimate, ground_truth) -> tuple[dict, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Accuracy of the poses `estimate` (a Trajectory) against `ground_truth` (a Trajectory
     of the same instants, NaN rows: none); also the evaluated ground truth as
     `(timestamp_ns, R_world_camera, t_world_camera)` arrays.
@@ -66,8 +68,8 @@ def stereo_timing(steps: list[tuple[int, dict[str, float]]]) -> dict:
     variants, segmentation of -wo variants); None where it never ran."""
     frames = sum(f for f, _ in steps)
     stages: list[str] = []
-    for _, timing in steps:
-        stages += [k for k in timing if k not in stages]
+    for _, step_timing in steps:
+        stages += [k for k in step_timing if k not in stages]
     mean: dict[str, float | None] = {}
     for stage in stages:
         if stage == "total_per_frame":
@@ -78,12 +80,12 @@ def stereo_timing(steps: list[tuple[int, dict[str, float]]]) -> dict:
             ran = [t[stage] for _, t in steps if t.get(stage, 0.0) != 0.0]
             mean[stage] = sum(ran) / len(ran) if ran else None
     mean["total_per_frame"] = sum(t.get("total", 0.0) for _, t in steps) / frames if frames else None
-    timing = {k: mean.get(k) for k in ("point_dm", "tracking", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame")}
+    timing: dict[str, Any] = {k: mean.get(k) for k in ("point_dm", "tracking", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame")}
     timing["all_stages"] = mean
     return timing
 
 
-def vio_metrics(snapshot, frames) -> dict:  # noqa: ANN001
+def vio_metrics(snapshot, frames) -> dict:
     """The VIO part of metrics.json: the first initialization (keyframe, time, what the
     alignment estimated and, on rendered scenes, its errors; the latest one's too, after a
     loss VIO starts again; the gravity direction and gyroscope bias errors after the
@@ -97,10 +99,17 @@ def vio_metrics(snapshot, frames) -> dict:  # noqa: ANN001
         return float((snapshot.estimate.timestamp_ns[k] - snapshot.estimate.timestamp_ns[0]) * 1e-9) if k >= 0 else None
 
     out = {
-        "initialized": imu.initialized, "status": imu.status,
-        "init_keyframe": first, "init_time_s": time_s(first), "alignment": imu.first_report,
-        "last_init_keyframe": imu.init_keyframe, "last_init_time_s": time_s(imu.init_keyframe), "last_alignment": imu.report,
-        "velocity_world": imu.velocity_world[-1].tolist(), "bias_accel": imu.bias[-1][:3].tolist(), "bias_gyro": imu.bias[-1][3:].tolist(),
+        "initialized": imu.initialized,
+        "status": imu.status,
+        "init_keyframe": first,
+        "init_time_s": time_s(first),
+        "alignment": imu.first_report,
+        "last_init_keyframe": imu.init_keyframe,
+        "last_init_time_s": time_s(imu.init_keyframe),
+        "last_alignment": imu.report,
+        "velocity_world": imu.velocity_world[-1].tolist(),
+        "bias_accel": imu.bias[-1][:3].tolist(),
+        "bias_gyro": imu.bias[-1][3:].tolist(),
         "scale_error_pct": None,
     }
     if first >= 0 and snapshot.ground_truth is not None:

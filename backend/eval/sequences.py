@@ -25,12 +25,12 @@ class World:
     camera: PinholeCamera
     R_world_camera: np.ndarray  # (N, 3, 3)
     t_world_camera: np.ndarray  # (N, 3)
-    points: np.ndarray          # (P, 3)
-    point_plane: np.ndarray     # (P,)
-    segments: np.ndarray        # (L, 2, 3) endpoints
-    segment_plane: np.ndarray   # (L,)
-    plane_n: np.ndarray         # (Q, 3)
-    plane_d: np.ndarray         # (Q,)
+    points: np.ndarray  # (P, 3)
+    point_plane: np.ndarray  # (P,)
+    segments: np.ndarray  # (L, 2, 3) endpoints
+    segment_plane: np.ndarray  # (L,)
+    plane_n: np.ndarray  # (Q, 3)
+    plane_d: np.ndarray  # (Q,)
 
 
 def _look_frame(forward: np.ndarray) -> np.ndarray:

@@ -118,9 +118,7 @@ def trajectory_error(
     """
     if align not in _MIN_POSES:
         raise ValueError(f"align must be one of {get_args(AlignMode)}, got {align!r}")
-    p_est, p_gt = _validate_pair(
-        p_est_world, p_gt_world, "p_est_world", "p_gt_world", _MIN_POSES[align]
-    )
+    p_est, p_gt = _validate_pair(p_est_world, p_gt_world, "p_est_world", "p_gt_world", _MIN_POSES[align])
 
     if align != "none":
         rotation, translation, scale = umeyama_alignment(p_est, p_gt, with_scale=align == "sim3")
@@ -249,9 +247,7 @@ def _rmse(errors: np.ndarray) -> float:
     return float(np.sqrt(np.mean(errors**2)))
 
 
-def _validate_pair(
-    a: np.ndarray, b: np.ndarray, name_a: str, name_b: str, min_poses: int
-) -> tuple[np.ndarray, np.ndarray]:
+def _validate_pair(a: np.ndarray, b: np.ndarray, name_a: str, name_b: str, min_poses: int) -> tuple[np.ndarray, np.ndarray]:
     """Return both inputs as float64 (N, 3) arrays or raise ValueError."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
@@ -261,10 +257,7 @@ def _validate_pair(
         if not np.all(np.isfinite(p)):
             raise ValueError(f"{name} contains NaN or infinite values")
     if a.shape[0] != b.shape[0]:
-        raise ValueError(
-            f"{name_a} and {name_b} must have the same number of poses, "
-            f"got {a.shape[0]} and {b.shape[0]}"
-        )
+        raise ValueError(f"{name_a} and {name_b} must have the same number of poses, got {a.shape[0]} and {b.shape[0]}")
     if a.shape[0] < min_poses:
         raise ValueError(f"need at least {min_poses} poses, got {a.shape[0]}")
     return a, b

@@ -24,7 +24,7 @@ class VisualKeyframes:
     velocity_c0: np.ndarray
 
 
-def visual_keyframes(seq, duration_s: float, *, rate_hz: float = 10.0, rotation_deg: float = 0.2, position_fraction: float = 0.005, rng: np.random.Generator) -> VisualKeyframes:  # noqa: ANN001
+def visual_keyframes(seq, duration_s: float, *, rate_hz: float = 10.0, rotation_deg: float = 0.2, position_fraction: float = 0.005, rng: np.random.Generator) -> VisualKeyframes:
     """Keyframes at `rate_hz` over [0, duration_s] of a rendered sequence `seq`, the true
     camera poses in c0 with rotation noise of `rotation_deg` (degrees, 1 σ of the angle) and
     position noise of `position_fraction` of the mean keyframe-to-keyframe distance (1 σ of

@@ -36,7 +36,7 @@ FRUSTUM_DEPTH_M = 0.15
 MAP_FILES = ("map.ply", "points.ply", "lines.ply", "planes.ply", "cameras.ply")
 
 
-def point_cloud(snapshot: Snapshot):  # noqa: ANN201
+def point_cloud(snapshot: Snapshot):
     """The map points: an open3d tensor point cloud with colours and `plane_id`."""
     o3d = require_open3d()
     pts = snapshot.points
@@ -46,7 +46,7 @@ def point_cloud(snapshot: Snapshot):  # noqa: ANN201
     return cloud
 
 
-def line_set(snapshot: Snapshot):  # noqa: ANN201
+def line_set(snapshot: Snapshot):
     """The line segments: an open3d line set, two vertices per segment, coloured by plane."""
     o3d = require_open3d()
     seg = np.array(snapshot.lines.segment_world, dtype=float).reshape(-1, 2, 3)  # a writable copy (snapshots are read-only)
@@ -55,7 +55,7 @@ def line_set(snapshot: Snapshot):  # noqa: ANN201
     return ls
 
 
-def camera_frustums(snapshot: Snapshot):  # noqa: ANN201
+def camera_frustums(snapshot: Snapshot):
     """The keyframe cameras (estimate): an open3d line set, 5 vertices and 8 edges each."""
     o3d = require_open3d()
     cam = snapshot.camera

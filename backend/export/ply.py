@@ -25,11 +25,13 @@ def snapshot_ply_bytes(snapshot: Snapshot) -> bytes:
     hulls = [p.hull_world for p in snapshot.planes if len(p.hull_world) >= 3]
     hull_planes = [p.id for p in snapshot.planes if len(p.hull_world) >= 3]
     xyz = np.concatenate([pts.p_world, segs, *hulls]).reshape(-1, 3)
-    rgb = np.concatenate([
-        plane_color(pts.plane).reshape(-1, 3),
-        np.repeat(plane_color(snapshot.lines.plane).reshape(-1, 3), 2, axis=0),
-        *[np.repeat(plane_color(q)[None], len(h), axis=0) for q, h in zip(hull_planes, hulls)],
-    ]).reshape(-1, 3)
+    rgb = np.concatenate(
+        [
+            plane_color(pts.plane).reshape(-1, 3),
+            np.repeat(plane_color(snapshot.lines.plane).reshape(-1, 3), 2, axis=0),
+            *[np.repeat(plane_color(q)[None], len(h), axis=0) for q, h in zip(hull_planes, hulls)],
+        ]
+    ).reshape(-1, 3)
     vertex = np.empty(len(xyz), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
     vertex["x"], vertex["y"], vertex["z"] = xyz.T
     vertex["red"], vertex["green"], vertex["blue"] = rgb.T

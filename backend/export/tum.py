@@ -20,7 +20,8 @@ def write_tum(path: pathlib.Path | str | typing.TextIO, trajectory: Trajectory) 
     q_xyzw = Rotation.from_matrix(trajectory.R_world_camera).as_quat() if len(trajectory) else np.zeros((0, 4))
     t = trajectory.timestamp_ns.astype(np.float64) * 1e-9
     rows = np.concatenate([t[:, None], trajectory.t_world_camera, q_xyzw], axis=1)
-    def save(target) -> None:  # noqa: ANN001
+
+    def save(target) -> None:
         np.savetxt(target, rows, fmt=["%.9f"] + ["%.9f"] * 7, header="t x y z qx qy qz qw", comments="# ")
 
     if not isinstance(path, (str, os.PathLike)):  # an open text stream (the debugger's download)

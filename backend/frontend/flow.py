@@ -55,20 +55,20 @@ class FlowTracks:
     uv: np.ndarray
 
     @staticmethod
-    def empty() -> "FlowTracks":
+    def empty() -> FlowTracks:
         return FlowTracks(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)))
 
     def __len__(self) -> int:
         return len(self.anchor)
 
-    def subset(self, keep: np.ndarray) -> "FlowTracks":
+    def subset(self, keep: np.ndarray) -> FlowTracks:
         return FlowTracks(self.anchor[keep], self.anchor_kp[keep], self.uv_anchor[keep], self.uv[keep])
 
-    def followed(self, uv: np.ndarray, ok: np.ndarray) -> "FlowTracks":
+    def followed(self, uv: np.ndarray, ok: np.ndarray) -> FlowTracks:
         """The tracks found in the next frame, at their new pixels."""
         return FlowTracks(self.anchor[ok], self.anchor_kp[ok], self.uv_anchor[ok], uv[ok])
 
-    def seeded(self, k: int, uv: np.ndarray, kp_index: np.ndarray, *, min_distance_px: float, max_tracks: int) -> "FlowTracks":
+    def seeded(self, k: int, uv: np.ndarray, kp_index: np.ndarray, *, min_distance_px: float, max_tracks: int) -> FlowTracks:
         """New tracks at keyframe k from its candidate keypoints (pixels `uv` (M, 2), indices
         `kp_index` (M,)), in order, each at least `min_distance_px` from every track and earlier
         candidate, up to `max_tracks` tracks in all."""

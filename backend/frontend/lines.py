@@ -133,7 +133,7 @@ def detect_segments(image: np.ndarray, *, settings: LineSettings = LineSettings(
     if len(seg) == 0:
         return Segments(start=np.zeros((0, 2)), end=np.zeros((0, 2)), descriptors=np.zeros((0, 32), np.uint8))
     if not _LBD:
-        _LBD.append(cv2.line_descriptor.BinaryDescriptor_createBinaryDescriptor())
+        _LBD.append(cv2.line_descriptor.BinaryDescriptor_createBinaryDescriptor())  # type: ignore[attr-defined]  # not in OpenCV's stubs
     keylines, desc = _LBD[0].compute(image, [_keyline(i, a[:2], a[2:]) for i, a in enumerate(seg)])
     index = np.array([kl.class_id for kl in keylines], dtype=int)  # compute may drop lines
     seg = seg[index]

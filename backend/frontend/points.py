@@ -84,7 +84,7 @@ _ORB_CACHE: dict[tuple[int, int, float, int], cv2.ORB] = {}
 def _orb(*, n_features: int, fast_threshold: int, scale_factor: float, n_levels: int) -> cv2.ORB:
     key = (n_features, fast_threshold, scale_factor, n_levels)
     if key not in _ORB_CACHE:
-        _ORB_CACHE[key] = cv2.ORB_create(nfeatures=n_features, scaleFactor=scale_factor, nlevels=n_levels, fastThreshold=fast_threshold, edgeThreshold=19, patchSize=31)
+        _ORB_CACHE[key] = cv2.ORB_create(nfeatures=n_features, scaleFactor=scale_factor, nlevels=n_levels, fastThreshold=fast_threshold, edgeThreshold=19, patchSize=31)  # type: ignore[attr-defined]  # not in OpenCV's stubs
     return _ORB_CACHE[key]
 
 

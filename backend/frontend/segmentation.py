@@ -40,6 +40,7 @@ class PlaneMasks:
             raise ValueError("normals_camera and offsets_camera come together")
         if self.normals_camera is not None:
             k = self.count
+            assert self.offsets_camera is not None  # checked together above
             if self.normals_camera.shape != (k, 3) or self.offsets_camera.shape != (k,):
                 raise ValueError(f"expected {k} planes: normals (K, 3), offsets (K,)")
 

@@ -64,9 +64,16 @@ class GeometricPlaneSegmenter:
         s = settings
         num = int(np.ceil(s.max_disparity_px / s.scale / 16.0)) * 16
         bs = s.sgbm_block_size
-        self._sgbm = cv2.StereoSGBM_create(
-            minDisparity=0, numDisparities=num, blockSize=bs, P1=8 * bs * bs, P2=32 * bs * bs,
-            disp12MaxDiff=1, uniquenessRatio=10, speckleWindowSize=50, speckleRange=1,
+        self._sgbm = cv2.StereoSGBM_create(  # type: ignore[attr-defined]  # not in OpenCV's stubs
+            minDisparity=0,
+            numDisparities=num,
+            blockSize=bs,
+            P1=8 * bs * bs,
+            P2=32 * bs * bs,
+            disp12MaxDiff=1,
+            uniquenessRatio=10,
+            speckleWindowSize=50,
+            speckleRange=1,
             mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
         )
 
@@ -100,9 +107,13 @@ class GeometricPlaneSegmenter:
         disp = self.disparity(left, right)
         # Working pixel (uw, vw) covers full pixels around u = scale·uw + (scale - 1)/2.
         work = PinholeCamera(
-            fx=camera.fx / s.scale, fy=camera.fy / s.scale,
-            cx=(camera.cx - (s.scale - 1) / 2.0) / s.scale, cy=(camera.cy - (s.scale - 1) / 2.0) / s.scale,
-            width=disp.shape[1], height=disp.shape[0], baseline=camera.baseline,
+            fx=camera.fx / s.scale,
+            fy=camera.fy / s.scale,
+            cx=(camera.cx - (s.scale - 1) / 2.0) / s.scale,
+            cy=(camera.cy - (s.scale - 1) / 2.0) / s.scale,
+            width=disp.shape[1],
+            height=disp.shape[0],
+            baseline=camera.baseline,
         )
         models, labels = _grow_regions(disp, settings=s, camera=work)
         order = np.argsort([-np.count_nonzero(labels == k) for k in range(len(models))], kind="stable")
@@ -245,7 +256,9 @@ def _grow_regions(disp: np.ndarray, *, settings: GeometricSegmenterSettings, cam
     return models, labels
 
 
-def _merge_coplanar(models: list[np.ndarray], labels: np.ndarray, *, disp0: np.ndarray, u_grid: np.ndarray, v_grid: np.ndarray, residual: float, settings: GeometricSegmenterSettings, camera: PinholeCamera) -> tuple[list[np.ndarray], np.ndarray]:
+def _merge_coplanar(
+    models: list[np.ndarray], labels: np.ndarray, *, disp0: np.ndarray, u_grid: np.ndarray, v_grid: np.ndarray, residual: float, settings: GeometricSegmenterSettings, camera: PinholeCamera
+) -> tuple[list[np.ndarray], np.ndarray]:
     """Merge regions whose models each explain `merge_inlier_share` of the other's pixels and
     whose 3D planes agree within `merge_angle_deg` and `merge_offset` (relative); in place on
     `labels`. Returns the surviving models and the relabelled labels (0..K-1)."""

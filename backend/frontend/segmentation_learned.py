@@ -150,16 +150,22 @@ class LearnedSegmenter:
     def segment(self, left: np.ndarray, right: np.ndarray, camera: PinholeCamera) -> PlaneMasks:
         """Instance masks of the left image (`right` and `camera` are not needed)."""
         prob, emb, normals = self.predict(left)
-        labels = cluster_embeddings(self.clustering_features(emb, normals), prob >= self.settings.planar_threshold, bandwidth=self.bandwidth, seeds=self.settings.seeds,
-                                    iterations=self.settings.iterations, min_share=self.settings.min_share, seed=self.settings.seed,
-                                    sample=self.settings.sample)
+        labels = cluster_embeddings(
+            self.clustering_features(emb, normals),
+            prob >= self.settings.planar_threshold,
+            bandwidth=self.bandwidth,
+            seeds=self.settings.seeds,
+            iterations=self.settings.iterations,
+            min_share=self.settings.min_share,
+            seed=self.settings.seed,
+            sample=self.settings.sample,
+        )
         H, W = left.shape
         full = cv2.resize(labels.astype(np.int16), (W, H), interpolation=cv2.INTER_NEAREST)
         return PlaneMasks(labels=full.astype(np.int16))
 
 
-def cluster_embeddings(embedding: np.ndarray, planar: np.ndarray, *, bandwidth: float, seeds: int = 150, iterations: int = 8,
-                       min_share: float = 0.01, seed: int = 0, sample: int = 1500) -> np.ndarray:
+def cluster_embeddings(embedding: np.ndarray, planar: np.ndarray, *, bandwidth: float, seeds: int = 150, iterations: int = 8, min_share: float = 0.01, seed: int = 0, sample: int = 1500) -> np.ndarray:
     """Instances (h, w) int16 (`NO_PLANE` elsewhere) from embeddings (h, w, D) of the
     `planar` pixels: flat-kernel mean shift over a random `sample` of them from `seeds` of
     those (vectorized over seeds), modes closer than `bandwidth` merged, each planar pixel given to its nearest

@@ -19,7 +19,7 @@ class OracleSegmenter:
 
     name = "oracle (ground-truth masks of the rendered scene)"
 
-    def __init__(self, source, *, min_share: float = 0.01) -> None:  # noqa: ANN001
+    def __init__(self, source, *, min_share: float = 0.01) -> None:
         if not isinstance(source, RenderedTruth):
             raise ValueError("the oracle segmenter needs a rendered scene (its exact plane ids)")
         self.source = source

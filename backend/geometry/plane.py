@@ -11,9 +11,8 @@ import numba
 import numpy as np
 
 
-
 @numba.njit(cache=True, nogil=True)
-def _tangent_basis_kernel(n, out):  # noqa: ANN001
+def _tangent_basis_kernel(n, out):
     for k in range(n.shape[0]):
         n0, n1, n2 = n[k, 0], n[k, 1], n[k, 2]
         a0, a1, a2 = abs(n0), abs(n1), abs(n2)

@@ -24,7 +24,7 @@ class Poses:
     def __len__(self) -> int:
         return int(self.t_world_camera.shape[0])
 
-    def retract(self, delta: np.ndarray) -> "Poses":
+    def retract(self, delta: np.ndarray) -> Poses:
         """Apply (N, 6) increments `(δθ, δt)`: `R Exp(δθ)`, `t + δt`."""
         delta = np.asarray(delta, dtype=float).reshape(-1, 6)
         return Poses(
@@ -37,7 +37,7 @@ class Poses:
         R = self.R_world_camera[idx]
         return np.einsum("mji,mj->mi", R, p_world - self.t_world_camera[idx])
 
-    def copy(self) -> "Poses":
+    def copy(self) -> Poses:
         return Poses(self.R_world_camera.copy(), self.t_world_camera.copy())
 
 

@@ -35,7 +35,7 @@ def hat(w: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _exp_kernel(w, out):  # noqa: ANN001
+def _exp_kernel(w, out):
     for n in range(w.shape[0]):
         x, y, z = w[n, 0], w[n, 1], w[n, 2]
         t2 = x * x + y * y + z * z
@@ -50,7 +50,7 @@ def _exp_kernel(w, out):  # noqa: ANN001
 
 
 @numba.njit(cache=True, nogil=True)
-def _identity_plus(x, y, z, a, b, out):  # noqa: ANN001, ANN202
+def _identity_plus(x, y, z, a, b, out):
     """out (3, 3) = I + a K + b K² for K = [w]_×, w = (x, y, z); K² = w wᵀ - |w|² I."""
     t2 = x * x + y * y + z * z
     out[0, 0] = 1.0 + b * (x * x - t2)
@@ -74,13 +74,13 @@ def exp(w: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _log_kernel(R, out):  # noqa: ANN001
+def _log_kernel(R, out):
     for n in range(R.shape[0]):
         log_one(R[n], out[n])
 
 
 @numba.njit(cache=True, nogil=True)
-def log_one(M, out):  # noqa: ANN001
+def log_one(M, out):
     """Compiled `log` of one rotation matrix M (3, 3) into out (3,) (for other kernels)."""
     c = min(1.0, max(-1.0, (M[0, 0] + M[1, 1] + M[2, 2] - 1.0) / 2.0))
     theta = np.arccos(c)
@@ -127,13 +127,13 @@ def log(R: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _right_jacobian_inv_kernel(w, out):  # noqa: ANN001
+def _right_jacobian_inv_kernel(w, out):
     for n in range(w.shape[0]):
         right_jacobian_inv_one(w[n], out[n])
 
 
 @numba.njit(cache=True, nogil=True)
-def right_jacobian_inv_one(w, out):  # noqa: ANN001
+def right_jacobian_inv_one(w, out):
     """Compiled `right_jacobian_inv` of one rotation vector w (3,) into out (3, 3)."""
     x, y, z = w[0], w[1], w[2]
     t2 = x * x + y * y + z * z

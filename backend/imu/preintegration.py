@@ -141,7 +141,9 @@ def preintegrate(
         raise ValueError(f"IMU timestamps do not increase at sample {k} ({stamps[k]} ns)")
     if np.any(spans > max_gap_ns):
         k = int(np.flatnonzero(spans > max_gap_ns)[0])
-        raise ValueError(f"IMU samples do not cover [{t0_ns}, {t1_ns}] ns: sample at {begins[k]} ns holds for {spans[k] * 1e-6:.3f} ms, more than the {max_gap_ns * 1e-6:.3f} ms allowed between IMU samples")
+        raise ValueError(
+            f"IMU samples do not cover [{t0_ns}, {t1_ns}] ns: sample at {begins[k]} ns holds for {spans[k] * 1e-6:.3f} ms, more than the {max_gap_ns * 1e-6:.3f} ms allowed between IMU samples"
+        )
     dt_s = (np.minimum(ends, t1_ns) - np.maximum(begins, t0_ns)) * 1e-9
     pim = gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias(np.asarray(bias_accel, dtype=float), np.asarray(bias_gyro, dtype=float)))
     accel = imu.accel[first : last + 1]
@@ -155,7 +157,7 @@ def imu_factor(pim: gtsam.PreintegratedImuMeasurements) -> PreparedImuFactor:
     """The gtsam factor and square-root information of one preintegration (done once per
     preintegration; :func:`imu_factor_error` accepts the result in place of `pim`)."""
     factor = gtsam.ImuFactor(0, 1, 2, 3, 4, pim)
-    return PreparedImuFactor(pim=pim, factor=factor, sqrt_information=np.array(factor.noiseModel().R()))
+    return PreparedImuFactor(pim=pim, factor=factor, sqrt_information=np.array(factor.noiseModel().R()))  # type: ignore[attr-defined]  # gtsam's stubs: a Gaussian noise model
 
 
 def imu_factor_error(
@@ -183,7 +185,11 @@ def imu_factor_error(
         gtsam.Pose3(gtsam.Rot3(R_j), np.asarray(t_world_body_j, dtype=float)),
         np.asarray(v_world_j, dtype=float),
         constant_bias(bias_i),
-        H[:, 0:6], H[:, 6:9], H[:, 9:15], H[:, 15:18], H[:, 18:24],
+        H[:, 0:6],
+        H[:, 6:9],
+        H[:, 9:15],
+        H[:, 15:18],
+        H[:, 18:24],
     )
     # gtsam's body-frame translation columns to the project's world-frame δt: ∂r/∂δt = ∂r/∂u Rᵀ.
     H[:, 3:6] = H[:, 3:6] @ R_i.T

@@ -60,17 +60,36 @@ class LandmarkStore:
 
 
 def point_store() -> LandmarkStore:
-    return LandmarkStore({
-        "p_world": ((3,), float), "ok": ((), bool), "anchor": ((), np.int64), "anchor_uv": ((2,), float), "anchor_ur": ((), float),
-        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64), "born": ((), np.int64),
-    })
+    return LandmarkStore(
+        {
+            "p_world": ((3,), float),
+            "ok": ((), bool),
+            "anchor": ((), np.int64),
+            "anchor_uv": ((2,), float),
+            "anchor_ur": ((), float),
+            "plane": ((), np.int64),
+            "desc": ((32,), np.uint8),
+            "n_kf": ((), np.int64),
+            "born": ((), np.int64),
+        }
+    )
 
 
 def line_store() -> LandmarkStore:
-    return LandmarkStore({
-        "m": ((3,), float), "v": ((3,), float), "ok": ((), bool), "anchor": ((), np.int64), "anchor_uv": ((4,), float), "anchor_ruv": ((4,), float),
-        "plane": ((), np.int64), "desc": ((32,), np.uint8), "n_kf": ((), np.int64), "born": ((), np.int64),
-    })
+    return LandmarkStore(
+        {
+            "m": ((3,), float),
+            "v": ((3,), float),
+            "ok": ((), bool),
+            "anchor": ((), np.int64),
+            "anchor_uv": ((4,), float),
+            "anchor_ruv": ((4,), float),
+            "plane": ((), np.int64),
+            "desc": ((32,), np.uint8),
+            "n_kf": ((), np.int64),
+            "born": ((), np.int64),
+        }
+    )
 
 
 @dataclasses.dataclass
@@ -92,8 +111,21 @@ class Map:
     # What copy() copies; everything else an instance holds is shared (the camera). A new
     # attribute must be added to one of the two (tests/backend/mapping/test_map.py).
     COPIED = (
-        "R_world_keyframe", "t_world_keyframe", "R_world_keyframe_true", "t_world_keyframe_true", "keyframe_stamp_ns", "keyframe_frame",
-        "frame_index", "frame_reference", "R_reference_frame", "t_reference_frame", "observations", "points", "lines", "planes", "segment_start",
+        "R_world_keyframe",
+        "t_world_keyframe",
+        "R_world_keyframe_true",
+        "t_world_keyframe_true",
+        "keyframe_stamp_ns",
+        "keyframe_frame",
+        "frame_index",
+        "frame_reference",
+        "R_reference_frame",
+        "t_reference_frame",
+        "observations",
+        "points",
+        "lines",
+        "planes",
+        "segment_start",
     )
     SHARED = ("camera",)
 

@@ -50,8 +50,15 @@ class WindowSettings:
 
 
 def assemble_window(
-    the_map: Map, k: int, *, w0: int, oldest: int, settings: WindowSettings, fix_first: bool,
-    keep_landmarks: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None, extra_planes: np.ndarray | None = None,
+    the_map: Map,
+    k: int,
+    *,
+    w0: int,
+    oldest: int,
+    settings: WindowSettings,
+    fix_first: bool,
+    keep_landmarks: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
+    extra_planes: np.ndarray | None = None,
 ) -> Window:
     """The window of keyframes [w0, k] (module docstring). `keep_landmarks`: masks over the
     landmarks the window's keyframes observe (points, lines) -> those the problem keeps (None:
@@ -123,10 +130,25 @@ def assemble_window(
     U, phi = line_geo.to_orthonormal(Lm.m[lns], Lm.v[lns]) if len(lns) else (np.zeros((0, 3, 3)), np.zeros((0, 2)))
     N, D = the_map.planes.arrays()
     data = ProblemData(
-        camera=cam, poses=Poses(R, t),
-        point_anchor=a_p, point_anchor_uv=P.anchor_uv[pts], point_rho=rho, point_plane=q_local[P.plane[pts]], point_obs=p_obs,
-        line_anchor=local(kfs, Lm.anchor[lns]), line_anchor_uv=Lm.anchor_uv[lns], line_U=U, line_phi=phi, line_plane=q_local[Lm.plane[lns]], line_obs=l_obs,
-        plane_n=N[planes], plane_d=D[planes], odometry=None, prior=None, sigma_px=settings.pixel_sigma, fixed_poses=fixed,
+        camera=cam,
+        poses=Poses(R, t),
+        point_anchor=a_p,
+        point_anchor_uv=P.anchor_uv[pts],
+        point_rho=rho,
+        point_plane=q_local[P.plane[pts]],
+        point_obs=p_obs,
+        line_anchor=local(kfs, Lm.anchor[lns]),
+        line_anchor_uv=Lm.anchor_uv[lns],
+        line_U=U,
+        line_phi=phi,
+        line_plane=q_local[Lm.plane[lns]],
+        line_obs=l_obs,
+        plane_n=N[planes],
+        plane_d=D[planes],
+        odometry=None,
+        prior=None,
+        sigma_px=settings.pixel_sigma,
+        fixed_poses=fixed,
     )
     return Window(k, data, kfs, pts, lns, planes)
 
@@ -135,6 +157,7 @@ def write_back(the_map: Map, window: Window, problem: Problem, state: State, var
     """Put a solve's free poses, the landmarks (lines only when the variant optimizes them)
     and the optimized planes into the map; the planes the window did not optimize follow
     their landmarks."""
+    assert window.data.fixed_poses is not None  # assemble_window always sets it
     free = ~window.data.fixed_poses
     kf_free = window.kf[free]
     the_map.R_world_keyframe[kf_free] = state.poses.R_world_camera[free]

@@ -40,9 +40,7 @@ def _transpose(A: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- points in 3D
 
 
-def point_world_inverse_depth(
-    x_anchor: np.ndarray, rho: np.ndarray, R_world_anchor: np.ndarray, t_world_anchor: np.ndarray
-) -> tuple[np.ndarray, Blocks]:
+def point_world_inverse_depth(x_anchor: np.ndarray, rho: np.ndarray, R_world_anchor: np.ndarray, t_world_anchor: np.ndarray) -> tuple[np.ndarray, Blocks]:
     """`X_w = R_a x̂_a / ρ + t_a` and its Jacobians w.r.t. the anchor pose and ρ.
 
     x_anchor: (M, 3) normalized anchor observation; rho (M,) in 1/m.
@@ -110,8 +108,21 @@ def point_reprojection(
     J = np.empty((M, 2, D + 6))
     depth = np.empty(M)
     kernels.point_reprojection(
-        camera.fx, camera.fy, camera.cx, camera.cy, p_world, J_world, landmark, R_world_camera, t_world_camera, pose,
-        np.ascontiguousarray(offset_camera, dtype=float), np.ascontiguousarray(uv_observed, dtype=float), residual, J, depth,
+        camera.fx,
+        camera.fy,
+        camera.cx,
+        camera.cy,
+        p_world,
+        J_world,
+        landmark,
+        R_world_camera,
+        t_world_camera,
+        pose,
+        np.ascontiguousarray(offset_camera, dtype=float),
+        np.ascontiguousarray(uv_observed, dtype=float),
+        residual,
+        J,
+        depth,
     )
     return residual, J, depth
 
@@ -188,8 +199,19 @@ def line_reprojection(
     residual = np.empty((M, 2))
     J = np.empty((M, 2, D + 6))
     kernels.line_reprojection(
-        camera.fx, np.ascontiguousarray(m_world), np.ascontiguousarray(v_world), np.ascontiguousarray(J_mv), landmark, R_world_camera,
-        t_world_camera, pose, np.ascontiguousarray(offset_camera, dtype=float), np.ascontiguousarray(x_start), np.ascontiguousarray(x_end), residual, J,
+        camera.fx,
+        np.ascontiguousarray(m_world),
+        np.ascontiguousarray(v_world),
+        np.ascontiguousarray(J_mv),
+        landmark,
+        R_world_camera,
+        t_world_camera,
+        pose,
+        np.ascontiguousarray(offset_camera, dtype=float),
+        np.ascontiguousarray(x_start),
+        np.ascontiguousarray(x_end),
+        residual,
+        J,
     )
     return residual, J
 
@@ -257,15 +279,16 @@ def line_plane_relative(
     residual = np.empty((K, 2))
     J = np.empty((K, 2, 6 + D + 3))
     kernels.line_plane_relative(
-        *(np.ascontiguousarray(a, dtype=float) for a in (m_world, v_world, J_mv)), np.ascontiguousarray(landmark, dtype=np.int64),
-        *(np.ascontiguousarray(a, dtype=float) for a in (x_start, x_end, R_world_anchor, t_world_anchor, n_world, d_world, B_plane)), residual, J,
+        *(np.ascontiguousarray(a, dtype=float) for a in (m_world, v_world, J_mv)),
+        np.ascontiguousarray(landmark, dtype=np.int64),
+        *(np.ascontiguousarray(a, dtype=float) for a in (x_start, x_end, R_world_anchor, t_world_anchor, n_world, d_world, B_plane)),
+        residual,
+        J,
     )
     return residual, J
 
 
-def line_point_nearest_ray(
-    m_world: np.ndarray, v: np.ndarray, c_world: np.ndarray, w_world: np.ndarray
-) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+def line_point_nearest_ray(m_world: np.ndarray, v: np.ndarray, c_world: np.ndarray, w_world: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
     """The point of the line (m, v) closest to the ray `c + λ w`.
 
     Returns P (M, 3), its Jacobians {"m", "v", "c", "w"} (M, 3, 3) and the conditioning
@@ -301,9 +324,7 @@ def line_point_nearest_ray(
 # --------------------------------------------------------------------------- poses
 
 
-def relative_pose_error(
-    R_world_camera: np.ndarray, t_world_camera: np.ndarray, i: np.ndarray, j: np.ndarray, R_i_j: np.ndarray, t_i_j: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def relative_pose_error(R_world_camera: np.ndarray, t_world_camera: np.ndarray, i: np.ndarray, j: np.ndarray, R_i_j: np.ndarray, t_i_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Odometry residual (M, 6): `[Log(R_ijᵀ R_iᵀ R_j), R_iᵀ (t_j - t_i) - t_ij]` for pose
     pairs (i, j) of the (N, 3, 3) / (N, 3) pose arrays; (R_ij, t_ij) is the measured pose of
     j in i's frame. Jacobian (M, 6, 12) w.r.t. [pose i | pose j]: rotation rows

@@ -72,9 +72,7 @@ SIDE_BY_SIDE_GAP_PX: int = 16
 
 # Codes of the intermediate uint8 image: 0 zero, 1..4 group rank, 5 separator.
 _SEPARATOR_CODE = len(GROUP_ORDER) + 1
-_PALETTE = np.array(
-    [ZERO_COLOR, *(GROUP_COLORS[k] for k in GROUP_ORDER), SEPARATOR_COLOR], dtype=np.uint8
-)
+_PALETTE = np.array([ZERO_COLOR, *(GROUP_COLORS[k] for k in GROUP_ORDER), SEPARATOR_COLOR], dtype=np.uint8)
 _RANK = {kind: i + 1 for i, kind in enumerate(GROUP_ORDER)}
 
 
@@ -145,10 +143,7 @@ def _validate_groups(groups: Sequence[HessianGroup]) -> int:
         if not isinstance(g, HessianGroup):
             raise TypeError(f"groups must contain HessianGroup, got {type(g).__name__}")
         if g.start != position:
-            raise ValueError(
-                f"groups must cover [0, n) contiguously in order: group {g.kind!r} starts at "
-                f"{g.start}, expected {position}"
-            )
+            raise ValueError(f"groups must cover [0, n) contiguously in order: group {g.kind!r} starts at {g.start}, expected {position}")
         position += g.size
     return position
 
@@ -255,9 +250,7 @@ def _legend_lines(groups: Sequence[HessianGroup], nnz: int) -> list[tuple[tuple[
     n = sum(g.size for g in groups)
     items = sum(g.items for g in groups)
     percent = 100.0 * nnz / (n * n) if n else 0.0
-    lines.append(
-        (None, f"total: {_plural(items, 'item')}, {_plural(n, 'param')}, nnz {nnz:,} ({_format_percent(percent)})")
-    )
+    lines.append((None, f"total: {_plural(items, 'item')}, {_plural(n, 'param')}, nnz {nnz:,} ({_format_percent(percent)})"))
     return lines
 
 

@@ -17,7 +17,7 @@ from backend.geometry.so3 import log_one, right_jacobian_inv_one
 
 
 @numba.njit(cache=True, nogil=True)
-def point_reprojection(fx, fy, cx, cy, p_world_l, J_world_l, landmark, R_world_camera, t_world_camera, pose, offset, uv, residual, J, depth):  # noqa: ANN001
+def point_reprojection(fx, fy, cx, cy, p_world_l, J_world_l, landmark, R_world_camera, t_world_camera, pose, offset, uv, residual, J, depth):
     """Fill residual (M, 2), J (M, 2, Dw + 6) and depth (M,) for points with world position
     p_world_l (L, 3) and Jacobian J_world_l (L, 3, Dw) seen from poses (N, 3, 3), (N, 3)."""
     Dw = J_world_l.shape[2]
@@ -63,12 +63,12 @@ def point_reprojection(fx, fy, cx, cy, p_world_l, J_world_l, landmark, R_world_c
 
 
 @numba.njit(cache=True, nogil=True)
-def _cross3(a0, a1, a2, b0, b1, b2):  # noqa: ANN001, ANN202
+def _cross3(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
 @numba.njit(cache=True, nogil=True)
-def line_reprojection(f, m_world_l, v_world_l, J_mv_l, landmark, R_world_camera, t_world_camera, pose, offset, x_start, x_end, residual, J):  # noqa: ANN001
+def line_reprojection(f, m_world_l, v_world_l, J_mv_l, landmark, R_world_camera, t_world_camera, pose, offset, x_start, x_end, residual, J):
     """Fill residual (M, 2) and J (M, 2, D + 6) of the endpoint-to-line error for lines with
     world Plücker (m, v) (L, 3) and Jacobian of the stacked (m, v) J_mv_l (L, 6, D)."""
     D = J_mv_l.shape[2]
@@ -131,7 +131,7 @@ def line_reprojection(f, m_world_l, v_world_l, J_mv_l, landmark, R_world_camera,
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def accumulate_normal_equations(J, residual, cols, H, g):  # noqa: ANN001
+def accumulate_normal_equations(J, residual, cols, H, g):
     """Add `JᵀJ` into the upper triangle of H (n, n) and `-Jᵀr` into g (n,) for a batch:
     J (M, r, D), residual (M, r), cols (M, D) global column of each Jacobian column or -1.
 
@@ -195,7 +195,7 @@ def accumulate_normal_equations(J, residual, cols, H, g):  # noqa: ANN001
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def accumulate_normal_blocks(J, residual, cols, rmap, lo, mid, hi, H_rr, H_rl, d_points, B_lines, g):  # noqa: ANN001
+def accumulate_normal_blocks(J, residual, cols, rmap, lo, mid, hi, H_rr, H_rl, d_points, B_lines, g):
     """As :func:`accumulate_normal_equations`, into the blocks the Schur complement needs
     instead of a dense H: `H_rr` (r, r) over the reduced columns (cameras, planes; `rmap`
     maps a global column to its reduced index or -1), `H_rl` (r, hi - lo) between reduced
@@ -257,7 +257,7 @@ def accumulate_normal_blocks(J, residual, cols, rmap, lo, mid, hi, H_rr, H_rl, d
 
 
 @numba.njit(cache=True, nogil=True)
-def mirror_upper(H):  # noqa: ANN001
+def mirror_upper(H):
     """Copy the upper triangle of the square H into its lower triangle, in place."""
     n = H.shape[0]
     for i in range(n):
@@ -266,7 +266,7 @@ def mirror_upper(H):  # noqa: ANN001
 
 
 @numba.njit(cache=True, nogil=True)
-def point_on_plane(x_anchor, n_world, d_world, B_plane, R_world_anchor, t_world_anchor, p_world, J, h_out):  # noqa: ANN001
+def point_on_plane(x_anchor, n_world, d_world, B_plane, R_world_anchor, t_world_anchor, p_world, J, h_out):
     """Co-planar point per landmark: p_world (P, 3), J (P, 3, 9) w.r.t. [anchor (δθ, δt) |
     plane (δn, δd)], depth h (P,). Formulas in :func:`backend.optim.factors.point_world_on_plane`."""
     for p in range(x_anchor.shape[0]):
@@ -319,7 +319,7 @@ def point_on_plane(x_anchor, n_world, d_world, B_plane, R_world_anchor, t_world_
 
 
 @numba.njit(cache=True, nogil=True)
-def line_on_plane(n_backprojection, n_world, d_world, B_plane, R_world_anchor, t_world_anchor, m_out, v_out, J):  # noqa: ANN001
+def line_on_plane(n_backprojection, n_world, d_world, B_plane, R_world_anchor, t_world_anchor, m_out, v_out, J):
     """Co-planar line per landmark: Plücker m, v (L, 3) and J (L, 6, 9), rows (m, v), columns
     [anchor (δθ, δt) | plane (δn, δd)]. Formulas in :func:`backend.optim.factors.line_world_on_plane`."""
     dN = np.empty((3, 3))
@@ -395,7 +395,7 @@ def line_on_plane(n_backprojection, n_world, d_world, B_plane, R_world_anchor, t
 
 
 @numba.njit(cache=True, nogil=True)
-def relative_pose(R_world_camera, t_world_camera, i_index, j_index, R_i_j, t_i_j, residual, J):  # noqa: ANN001
+def relative_pose(R_world_camera, t_world_camera, i_index, j_index, R_i_j, t_i_j, residual, J):
     """Odometry residual (M, 6) and Jacobian (M, 6, 12) w.r.t. [pose i | pose j]; formulas in
     :func:`backend.optim.factors.relative_pose_error`."""
     E = np.empty((3, 3))
@@ -439,7 +439,7 @@ def relative_pose(R_world_camera, t_world_camera, i_index, j_index, R_i_j, t_i_j
 
 
 @numba.njit(cache=True, nogil=True)
-def point_plane_relative(x_anchor, rho, R_world_anchor, t_world_anchor, n_world, d_world, B_plane, residual, J):  # noqa: ANN001
+def point_plane_relative(x_anchor, rho, R_world_anchor, t_world_anchor, n_world, d_world, B_plane, residual, J):
     """Scale-safe point-to-plane residual per (point, plane) pair: residual (K, 1) =
     `(n·X_w + d) / |n·t_a + d|` with `X_w = R_a x̂_a / ρ + t_a`, J (K, 1, 10) w.r.t.
     [anchor (δθ, δt) | ρ | plane (δn, δd)]. Formulas in
@@ -485,7 +485,7 @@ def point_plane_relative(x_anchor, rho, R_world_anchor, t_world_anchor, n_world,
 
 
 @numba.njit(cache=True, nogil=True)
-def line_plane_relative(m_world_l, v_world_l, J_mv_l, landmark, x_start, x_end, R_world_anchor, t_world_anchor, n_world, d_world, B_plane, residual, J):  # noqa: ANN001
+def line_plane_relative(m_world_l, v_world_l, J_mv_l, landmark, x_start, x_end, R_world_anchor, t_world_anchor, n_world, d_world, B_plane, residual, J):
     """Scale-safe line-to-plane residuals per (line, plane) pair: residual (K, 2) =
     `(n·P + d) / |n·t_a + d|` for P the points of line `landmark[k]` (world Plücker (m, v)
     (L, 3), J_mv_l (L, 6, D) the Jacobian of the stacked (m, v)) nearest to the anchor rays

@@ -21,11 +21,14 @@ eigenvalues below `rank_tolerance` of the largest are dropped from `A`.
 from __future__ import annotations
 
 import numpy as np
+
 from backend.optim import inertial
 from backend.optim.problem import Problem, State
 
 
-def marginalize(problem: Problem, state: State, *, poses: np.ndarray, points: np.ndarray = np.zeros(0, np.int64), lines: np.ndarray = np.zeros(0, np.int64), rank_tolerance: float = 1e-9) -> inertial.LinearPrior | None:
+def marginalize(
+    problem: Problem, state: State, *, poses: np.ndarray, points: np.ndarray = np.zeros(0, np.int64), lines: np.ndarray = np.zeros(0, np.int64), rank_tolerance: float = 1e-9
+) -> inertial.LinearPrior | None:
     """Marginalize the camera poses `poses` (with their inertial states) and the landmarks
     `points`, `lines` (problem indices; those without a variable under the variant are
     ignored) of `problem` at `state`. Returns the prior on the poses, inertial states and
@@ -95,7 +98,7 @@ def marginalize(problem: Problem, state: State, *, poses: np.ndarray, points: np
     return _prior(problem, state, k_cols, A, b)
 
 
-def _ordered_kept(L, cols: np.ndarray) -> np.ndarray:  # noqa: ANN001
+def _ordered_kept(L, cols: np.ndarray) -> np.ndarray:
     """The kept columns in the prior's order (poses, inertial states, planes), whole blocks."""
     out = []
     for col, dim in ((L.pose_col, 6), (L.inertial_col, inertial.INERTIAL_DIM), (L.plane_col, 3)):
@@ -120,11 +123,19 @@ def _prior(problem: Problem, state: State, k_cols: np.ndarray, A: np.ndarray, b:
     pi, ii, qi = chosen(L.pose_col), chosen(L.inertial_col), chosen(L.plane_col)
     vb = np.zeros((len(ii), inertial.INERTIAL_DIM))
     if len(ii):
+        assert state.velocity is not None and state.bias is not None  # inertial columns come with inertial states
         vb = np.concatenate([state.velocity[ii], state.bias[ii]], axis=1)
     return inertial.LinearPrior(
-        pose_index=pi, inertial_index=ii, plane_index=qi,
-        R=state.poses.R_world_camera[pi].copy(), t=state.poses.t_world_camera[pi].copy(), inertial=vb,
-        plane_n=state.plane_n[qi].copy(), plane_d=state.plane_d[qi].copy(), A=A, b=b,
+        pose_index=pi,
+        inertial_index=ii,
+        plane_index=qi,
+        R=state.poses.R_world_camera[pi].copy(),
+        t=state.poses.t_world_camera[pi].copy(),
+        inertial=vb,
+        plane_n=state.plane_n[qi].copy(),
+        plane_d=state.plane_d[qi].copy(),
+        A=A,
+        b=b,
     )
 
 

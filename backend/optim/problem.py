@@ -20,9 +20,10 @@ from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.geometry.se3 import Poses
 from backend.optim import factors, inertial, kernels
+from backend.optim.hessian_image import GroupKind
 from backend.optim.variant import PlaneMode, Variant
 
-GROUPS: tuple[str, ...] = ("cameras", "points", "lines", "planes")
+GROUPS: tuple[GroupKind, ...] = ("cameras", "points", "lines", "planes")
 
 # A ray or back-projection plane within this angle of parallel to its plane is rejected.
 MIN_PLANE_ANGLE_RAD = np.deg2rad(3.0)
@@ -63,11 +64,11 @@ class Observations:
     def __len__(self) -> int:
         return int(self.landmark.shape[0])
 
-    def select(self, mask: np.ndarray) -> "Observations":
+    def select(self, mask: np.ndarray) -> Observations:
         return Observations(self.landmark[mask], self.pose[mask], self.uv[mask], self.offset[mask])
 
     @staticmethod
-    def empty(width: int) -> "Observations":
+    def empty(width: int) -> Observations:
         return Observations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, width)), np.zeros((0, 3)))
 
 
@@ -138,7 +139,7 @@ class ProblemData:
     sigma_rel: float = SIGMA_REL_DEFAULT  # -r: σ of (plane distance) / (anchor's distance to the plane), dimensionless
     fixed_poses: np.ndarray | None = None  # bool (N,): held constant (no columns)
     distance_prior: DistancePrior | None = None
-    inertial: "inertial.InertialData | None" = None  # VIO: velocities, biases, IMU factors, prior
+    inertial: inertial.InertialData | None = None  # VIO: velocities, biases, IMU factors, prior
 
 
 @dataclasses.dataclass
@@ -155,12 +156,18 @@ class State:
     plane_n: np.ndarray
     plane_d: np.ndarray
     velocity: np.ndarray | None = None  # (N, 3) m/s, world (VIO)
-    bias: np.ndarray | None = None      # (N, 6) (b_a m/s², b_g rad/s) (VIO)
+    bias: np.ndarray | None = None  # (N, 6) (b_a m/s², b_g rad/s) (VIO)
 
-    def copy(self) -> "State":
+    def copy(self) -> State:
         return State(
-            self.poses.copy(), self.rho.copy(), self.line_U.copy(), self.line_phi.copy(), self.plane_n.copy(), self.plane_d.copy(),
-            None if self.velocity is None else self.velocity.copy(), None if self.bias is None else self.bias.copy(),
+            self.poses.copy(),
+            self.rho.copy(),
+            self.line_U.copy(),
+            self.line_phi.copy(),
+            self.plane_n.copy(),
+            self.plane_d.copy(),
+            None if self.velocity is None else self.velocity.copy(),
+            None if self.bias is None else self.bias.copy(),
         )
 
 
@@ -256,7 +263,7 @@ class Linearization:
         kernels.mirror_upper(H)
         return H, g
 
-    def normal_blocks(self, layout: "Layout") -> NormalBlocks:
+    def normal_blocks(self, layout: Layout) -> NormalBlocks:
         """The same normal equations as :meth:`normal_equations`, in Schur blocks
         (:class:`NormalBlocks`): memory and time grow with cameras × landmarks, not with
         (cameras + landmarks)², which matters for windows with thousands of landmarks."""
@@ -289,7 +296,7 @@ class NormalBlocks:
     B_lines: np.ndarray
     g: np.ndarray
 
-    def damped(self, lam: float) -> "NormalBlocks":
+    def damped(self, lam: float) -> NormalBlocks:
         """Marquardt's `H + λ diag(H)` (a copy; g shared)."""
         H_rr = self.H_rr.copy()
         H_rr[np.diag_indices_from(H_rr)] *= 1.0 + lam
@@ -343,13 +350,13 @@ class Problem:
     data: ProblemData
     variant: Variant
     layout: Layout
-    point_obs_inv_depth: Observations   # -wo/-r points and non-planar points of -w
-    point_obs_planar: Observations      # -w points (anchor ray on a plane)
-    line_obs_free: Observations          # orthonormal lines
-    line_obs_planar: Observations        # -w lines (back-projection plane ∩ plane)
-    point_plane_pairs: np.ndarray        # -r: (K, 2) point index, plane index
-    line_plane_pairs: np.ndarray         # -r: (K, 2) line index, plane index
-    robust_px: float | None = None       # Cauchy scale on reprojection residuals (whitened), None = off
+    point_obs_inv_depth: Observations  # -wo/-r points and non-planar points of -w
+    point_obs_planar: Observations  # -w points (anchor ray on a plane)
+    line_obs_free: Observations  # orthonormal lines
+    line_obs_planar: Observations  # -w lines (back-projection plane ∩ plane)
+    point_plane_pairs: np.ndarray  # -r: (K, 2) point index, plane index
+    line_plane_pairs: np.ndarray  # -r: (K, 2) line index, plane index
+    robust_px: float | None = None  # Cauchy scale on reprojection residuals (whitened), None = off
     cache: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
 
     # ------------------------------------------------------------------ state
@@ -372,8 +379,7 @@ class Problem:
         if idx is None:  # which variables move and where their columns are (structure only)
             L = self.layout
             idx = self.cache["retract"] = tuple(
-                (np.flatnonzero(col >= 0), col[col >= 0][:, None] + np.arange(dim))
-                for col, dim in ((L.pose_col, 6), (L.point_col, 1), (L.line_col, 4), (L.plane_col, 3))
+                (np.flatnonzero(col >= 0), col[col >= 0][:, None] + np.arange(dim)) for col, dim in ((L.pose_col, 6), (L.point_col, 1), (L.line_col, 4), (L.plane_col, 3))
             )
         (pi, pc), (qi, qc), (li, lc), (ni, nc) = idx
         R, t = state.poses.R_world_camera, state.poses.t_world_camera
@@ -554,7 +560,7 @@ class Problem:
             self._add_inertial(asm, state)
         return asm.build()
 
-    def _add_inertial(self, asm: "_Assembler", state: State) -> None:
+    def _add_inertial(self, asm: _Assembler, state: State) -> None:
         """IMU preintegration, bias random walk and the linear (marginalization) prior."""
         d, L = self.data, self.layout
         ine = d.inertial
@@ -642,16 +648,29 @@ def _initially_near_plane(data: ProblemData, kind: str, index: np.ndarray) -> np
     if kind == "point":
         a, q = data.point_anchor[index], data.point_plane[index]
         res, _ = factors.point_plane_relative(
-            data.camera.normalize(data.point_anchor_uv[index]), data.point_rho[index], data.poses.R_world_camera[a], data.poses.t_world_camera[a],
-            data.plane_n[q], data.plane_d[q], plane_geo.tangent_basis(data.plane_n[q]),
+            data.camera.normalize(data.point_anchor_uv[index]),
+            data.point_rho[index],
+            data.poses.R_world_camera[a],
+            data.poses.t_world_camera[a],
+            data.plane_n[q],
+            data.plane_d[q],
+            plane_geo.tangent_basis(data.plane_n[q]),
         )
     else:
         a, q = data.line_anchor[index], data.line_plane[index]
         m, v, J_m, J_v = factors.line_world_orthonormal(data.line_U[index], data.line_phi[index])
         res, _ = factors.line_plane_relative(
-            m, v, np.concatenate([J_m, J_v], axis=1), np.arange(len(index)),
-            data.camera.normalize(data.line_anchor_uv[index, :2]), data.camera.normalize(data.line_anchor_uv[index, 2:]),
-            data.poses.R_world_camera[a], data.poses.t_world_camera[a], data.plane_n[q], data.plane_d[q], plane_geo.tangent_basis(data.plane_n[q]),
+            m,
+            v,
+            np.concatenate([J_m, J_v], axis=1),
+            np.arange(len(index)),
+            data.camera.normalize(data.line_anchor_uv[index, :2]),
+            data.camera.normalize(data.line_anchor_uv[index, 2:]),
+            data.poses.R_world_camera[a],
+            data.poses.t_world_camera[a],
+            data.plane_n[q],
+            data.plane_d[q],
+            plane_geo.tangent_basis(data.plane_n[q]),
         )
     return np.all(np.isfinite(res), axis=1) & (np.max(np.abs(res), axis=1) <= MAX_INITIAL_RELATIVE_RESIDUAL)
 

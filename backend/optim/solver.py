@@ -305,7 +305,7 @@ def optimize(
             if not np.all(np.isfinite(delta)):
                 rejected += 1
                 return False
-            candidate = problem.retract(state, delta)
+            candidate = problem.retract(state, delta)  # type: ignore[arg-type]  # noqa: B023 - runs within this iteration, where state is set
             lin_candidate = linearize(candidate)
             last_trial_cost = lin_candidate.cost
             if np.isfinite(lin_candidate.cost) and lin_candidate.cost <= costs[-1]:

@@ -39,6 +39,7 @@ import numpy as np
 import scipy.linalg.lapack
 import scipy.sparse
 
+
 @numba.njit(cache=True, nogil=True)
 def landmark_rows(H_rl: np.ndarray, n_points: int, n_lines: int) -> tuple[np.ndarray, np.ndarray]:
     """Rows of the reduced system that each landmark touches, as a CSR-like structure:
@@ -329,7 +330,7 @@ def envelope_plan(S_cameras: np.ndarray, n_border: int, panel: int = ENVELOPE_PA
             fill[a0:a1] = np.minimum(fill[a0:a1], j)
             flops += 2.0 * (a1 - a0) * (c0 - j) * (c1 - c0)
         w = c1 - c0
-        panels.append((c0, c1, r1, j0, tuple(tuple(u) for u in updates)))
+        panels.append((c0, c1, r1, j0, tuple((int(u[0]), int(u[1]), int(u[2])) for u in updates)))
         flops += 2.0 * n_border * (c0 - j0) * w + w**3 / 3 + (r1 - c1 + n_border) * w * w
     flops += 2.0 * n_border * n_border * n + n_border**3 / 3
     return EnvelopePlan(perm, first, fill, tuple(panels), flops, np.zeros((n, n)))

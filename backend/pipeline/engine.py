@@ -13,6 +13,7 @@ import dataclasses
 from typing import Any, Protocol, runtime_checkable
 
 from backend.optim.structure import HessianStructure
+from backend.optim.variant import Variant
 from backend.pipeline.snapshot import Snapshot
 
 
@@ -30,7 +31,7 @@ class Engine(Protocol):
         ...
 
     @property
-    def variant(self) -> str:
+    def variant(self) -> Variant:
         """The parametrization used by the next optimization (DESIGN §2 names)."""
         ...
 
@@ -38,7 +39,7 @@ class Engine(Protocol):
         """Process the next keyframe and optimize the window. Raises EndOfSequence."""
         ...
 
-    def set_variant(self, name: str) -> None:
+    def set_variant(self, variant: Variant) -> None:
         """Select the variant for following optimizations. Raises ValueError if unknown."""
         ...
 
@@ -51,17 +52,17 @@ class Engine(Protocol):
         """Start again from the first keyframe with the same settings."""
         ...
 
-    def compare_hessians(self, variants: tuple[str, ...]) -> dict[str, HessianStructure]:
+    def compare_hessians(self, variants: tuple[Variant, ...]) -> dict[Variant, HessianStructure]:
         """The current window linearized under each of `variants` (same data)."""
         ...
 
-    def checkpoint(self) -> object:
+    def checkpoint(self) -> EngineCheckpoint:
         """The engine's state now (map, window, estimates, position in the input), to be
         given back to :meth:`restore`: the debugger re-optimizes every variant from the same
         state and returns to a variant's result without recomputing it."""
         ...
 
-    def restore(self, state: object) -> None:
+    def restore(self, state: EngineCheckpoint) -> None:
         """Return to a state from :meth:`checkpoint` (any number of times)."""
         ...
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import pathlib
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from backend.optim.variant import Variant
 
@@ -111,8 +111,8 @@ def make_engine(config: EngineConfig) -> Engine:
     if config.mode is Mode.VIO:
         from backend.pipeline.vio_engine import VioEngine, VioSettings
 
-        settings = VioSettings(variant=config.variant, window=config.window, seed=config.seed, **_stage_options(config))
-        return VioEngine(source, settings=settings, name=f"{name}, VIO, {_segmenter_kind(config)} segmenter", segmenter=segmenter)  # type: ignore[arg-type]
+        vio_settings = VioSettings(variant=config.variant, window=config.window, seed=config.seed, **_stage_options(config))
+        return VioEngine(source, settings=vio_settings, name=f"{name}, VIO, {_segmenter_kind(config)} segmenter", segmenter=segmenter)
     from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
 
     if config.segmenter in (SegmenterKind.LEARNED, SegmenterKind.ORACLE):
@@ -129,7 +129,7 @@ def _segmenter_kind(config: EngineConfig) -> SegmenterKind:
     return SegmenterKind.LEARNED if config.mode is Mode.VIO else SegmenterKind.GEOMETRIC
 
 
-def _stage_options(config: EngineConfig) -> dict[str, object]:
+def _stage_options(config: EngineConfig) -> dict[str, Any]:
     if config.interactive:
         return {"skip_unused_stages": False, "hessian": True, "image_scale": 1.0}
     return {"skip_unused_stages": True, "image_scale": None, "hessian": False}

@@ -28,10 +28,10 @@ from backend.common.palette import plane_color
 from backend.pipeline.snapshot import KeyframeImage
 
 # Point states (`point_status`).
-POINT_TRACKED = 0   # matched to an existing map point
-POINT_NEW = 1       # new landmark created from stereo
-POINT_UNUSED = 2    # detected, no landmark
-POINT_OUTLIER = 3   # rejected by the robust pose refinement
+POINT_TRACKED = 0  # matched to an existing map point
+POINT_NEW = 1  # new landmark created from stereo
+POINT_UNUSED = 2  # detected, no landmark
+POINT_OUTLIER = 3  # rejected by the robust pose refinement
 
 #: RGB colour and radius (output pixels) of each point state, indexed by state.
 POINT_COLORS = np.array([[40, 230, 40], [0, 230, 255], [200, 200, 200], [255, 40, 40]], dtype=np.uint8)

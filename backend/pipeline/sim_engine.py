@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 
+from backend.common.buffers import RowBuffer
 from backend.eval import sequences
 from backend.eval.trajectory import ate_rmse, translational_rmse
 from backend.geometry import line as line_geo
@@ -36,10 +37,9 @@ from backend.mapping import coplanar
 from backend.mapping.triangulation import triangulate_lines, triangulate_points
 from backend.optim import factors
 from backend.optim.problem import Observations, Odometry, PosePrior, ProblemData, build_problem
-from backend.optim.variant import VARIANTS, Variant
 from backend.optim.solver import optimize
 from backend.optim.structure import HessianStructure, hessian_structure
-from backend.common.buffers import RowBuffer
+from backend.optim.variant import VARIANTS, Variant
 from backend.pipeline.engine import EndOfSequence, EngineCheckpoint
 from backend.pipeline.snapshot import (
     Detection,
@@ -118,10 +118,10 @@ class _Window:
 
     keyframe: int
     data: ProblemData
-    kf: np.ndarray       # problem pose -> keyframe
-    points: np.ndarray   # problem point -> landmark id
-    lines: np.ndarray    # problem line -> landmark id
-    planes: np.ndarray   # problem plane -> plane id
+    kf: np.ndarray  # problem pose -> keyframe
+    points: np.ndarray  # problem point -> landmark id
+    lines: np.ndarray  # problem line -> landmark id
+    planes: np.ndarray  # problem plane -> plane id
 
 
 def _frame_index(k: int, n: int, name: str) -> int:
@@ -161,8 +161,31 @@ class SimEngine:
 
     # A checkpoint deep-copies STATE and keeps SHARED by reference (backend.pipeline.engine.EngineCheckpoint).
     STATE: tuple[str, ...] = (
-        "_R_est", "_t_est", "_R_gt", "_t_gt", "_R_odo", "_t_odo", "_stamp", "_obs", "_p_world", "_p_anchor", "_p_anchor_uv", "_p_ok", "_p_plane",
-        "_l_m", "_l_v", "_l_anchor", "_l_anchor_uv", "_l_ok", "_l_plane", "_planes", "_plane_n", "_plane_d", "_plane_consensus", "_variant", "_window",
+        "_R_est",
+        "_t_est",
+        "_R_gt",
+        "_t_gt",
+        "_R_odo",
+        "_t_odo",
+        "_stamp",
+        "_obs",
+        "_p_world",
+        "_p_anchor",
+        "_p_anchor_uv",
+        "_p_ok",
+        "_p_plane",
+        "_l_m",
+        "_l_v",
+        "_l_anchor",
+        "_l_anchor_uv",
+        "_l_ok",
+        "_l_plane",
+        "_planes",
+        "_plane_n",
+        "_plane_d",
+        "_plane_consensus",
+        "_variant",
+        "_window",
     )
     SHARED: tuple[str, ...] = ("settings", "_world", "_last")
 
@@ -386,9 +409,17 @@ class SimEngine:
         l_sel = self._l_ok[obs.line_id]
         p_ids, l_ids = obs.point_id[p_sel], obs.line_id[l_sel]
         det = coplanar.detect_keyframe_planes(
-            point_ids=p_ids, point_label=obs.point_label[p_sel], p_world=self._p_world[p_ids],
-            line_ids=l_ids, line_label=obs.line_label[l_sel], segments_world=self._segments_world(l_ids),
-            point_plane=self._p_plane, line_plane=self._l_plane, planes=self._planes, rng=rng, settings=self.settings.coplanar,
+            point_ids=p_ids,
+            point_label=obs.point_label[p_sel],
+            p_world=self._p_world[p_ids],
+            line_ids=l_ids,
+            line_label=obs.line_label[l_sel],
+            segments_world=self._segments_world(l_ids),
+            point_plane=self._p_plane,
+            line_plane=self._l_plane,
+            planes=self._planes,
+            rng=rng,
+            settings=self.settings.coplanar,
         )
         self._associate_new(new_points, new_lines)
         detection = Detection(det.instance, det.candidates, det.inliers, det.accepted, det.plane)
@@ -403,7 +434,12 @@ class SimEngine:
         lns = new_lines[self._l_plane[new_lines] < 0]
         N, D = self._planes.arrays()
         q_p, q_l = coplanar.associate_to_planes(
-            self._p_world[pts], self._segments_world(lns), N, D, [self._hull(q) for q in range(len(N))], threshold_m=self.settings.coplanar.threshold_m,
+            self._p_world[pts],
+            self._segments_world(lns),
+            N,
+            D,
+            [self._hull(q) for q in range(len(N))],
+            threshold_m=self.settings.coplanar.threshold_m,
         )
         self._p_plane[pts[q_p >= 0]] = q_p[q_p >= 0]
         self._l_plane[lns[q_l >= 0]] = q_l[q_l >= 0]
@@ -448,6 +484,7 @@ class SimEngine:
         kf_p, lm_p, uv_p = kf_p[use_p], lm_p[use_p], uv_p[use_p]
         kf_l, lm_l, uv_l = kf_l[use_l], lm_l[use_l], uv_l[use_l]
         kfs = np.unique(np.concatenate([kf_p, kf_l, np.arange(w0, k + 1), [max(w0 - 1, 0)]]))
+
         def to_local(keyframe: np.ndarray) -> np.ndarray:  # keyframe index -> problem pose
             return np.searchsorted(kfs, keyframe)
 
@@ -476,8 +513,12 @@ class SimEngine:
         j = np.arange(max(w0, 1), k + 1)
         i = j - 1
         odometry = Odometry(
-            i=to_local(i), j=to_local(j), R_i_j=self._R_odo[j], t_i_j=self._t_odo[j],
-            sigma_rot=max(s.odometry_rotation_sigma_rad, 1e-6), sigma_pos=max(s.odometry_position_sigma_m, 1e-6),
+            i=to_local(i),
+            j=to_local(j),
+            R_i_j=self._R_odo[j],
+            t_i_j=self._t_odo[j],
+            sigma_rot=max(s.odometry_rotation_sigma_rad, 1e-6),
+            sigma_pos=max(s.odometry_position_sigma_m, 1e-6),
         )
         prior = None
         if not np.any(fixed):  # the gauge: the first keyframe at its true pose
@@ -518,6 +559,7 @@ class SimEngine:
         timing["linearize"] = rep.linearize_ms
         timing["solve"] = rep.solve_ms
         t0 = time.perf_counter()
+        assert win.data.fixed_poses is not None
         free = ~win.data.fixed_poses
         kf_free = win.kf[free]
         self._R_est[kf_free] = state.poses.R_world_camera[free]
@@ -544,9 +586,19 @@ class SimEngine:
         timing["hessian"] = 1e3 * (time.perf_counter() - t0)
         timing["total"] = 1e3 * (time.perf_counter() - t_start)
         report = OptimizationReport(
-            variant=self._variant, method=s.method, iterations=rep.iterations, initial_cost=rep.initial_cost, final_cost=rep.final_cost,
-            converged=rep.converged, items=rep.items, params=rep.params, window=int(free.sum()), fixed_poses=int((~free).sum()), timing_ms=timing,
-            termination=rep.termination, dropped_landmarks=rep.dropped_landmarks,
+            variant=self._variant,
+            method=s.method,
+            iterations=rep.iterations,
+            initial_cost=rep.initial_cost,
+            final_cost=rep.final_cost,
+            converged=rep.converged,
+            items=rep.items,
+            params=rep.params,
+            window=int(free.sum()),
+            fixed_poses=int((~free).sum()),
+            timing_ms=timing,
+            termination=rep.termination,
+            dropped_landmarks=rep.dropped_landmarks,
         )
         self._last = self._snapshot(k, detection, det_state, report, hessian)
         return self._last
@@ -572,10 +624,12 @@ class SimEngine:
     def _snapshot(self, k: int, detection: Detection, det_state: tuple, report: OptimizationReport, hessian: HessianStructure) -> Snapshot:
         w0 = max(0, k - self.settings.window + 1)
         n = k + 1
-        estimate = Trajectory((
-            (self._stamp.prefix(w0), self._R_est.prefix(w0), self._t_est.prefix(w0)),
-            (frozen(self._stamp[w0:n].copy()), frozen(self._R_est[w0:n].copy()), frozen(self._t_est[w0:n].copy())),
-        ))
+        estimate = Trajectory(
+            (
+                (self._stamp.prefix(w0), self._R_est.prefix(w0), self._t_est.prefix(w0)),
+                (frozen(self._stamp[w0:n].copy()), frozen(self._R_est[w0:n].copy()), frozen(self._t_est[w0:n].copy())),
+            )
+        )
         gt = Trajectory.of(self._stamp.prefix(n), self._R_gt.prefix(n), self._t_gt.prefix(n))
         p_ids = np.flatnonzero(self._p_ok)
         p_det = np.zeros(len(self._p_ok), np.uint8)
@@ -589,18 +643,36 @@ class SimEngine:
         planes = []
         for q in range(len(self._plane_n)):
             hull = self._hull(q)
-            planes.append(PlaneLandmark(
-                id=q, n=frozen(np.array(self._plane_n[q])), d=float(self._plane_d[q]), hull_world=frozen(hull),
-                n_points=int(np.sum(self._p_plane == q)), n_lines=int(np.sum(self._l_plane == q)),
-                last_consensus=self._plane_consensus[q][0], last_candidates=self._plane_consensus[q][1],
-            ))
+            planes.append(
+                PlaneLandmark(
+                    id=q,
+                    n=frozen(np.array(self._plane_n[q])),
+                    d=float(self._plane_d[q]),
+                    hull_world=frozen(hull),
+                    n_points=int(np.sum(self._p_plane == q)),
+                    n_lines=int(np.sum(self._l_plane == q)),
+                    last_consensus=self._plane_consensus[q][0],
+                    last_candidates=self._plane_consensus[q][1],
+                )
+            )
         t_est = estimate.t_world_camera
         rmse = 100.0 * translational_rmse(t_est, gt.t_world_camera)
         ate = 100.0 * ate_rmse(t_est, gt.t_world_camera, align="se3") if n >= 3 else rmse
         return Snapshot(
-            keyframe=k, timestamp_ns=int(self._stamp[k]), source=self.source, camera=self._world.camera, estimate=estimate, ground_truth=gt,
-            window=frozen(np.arange(w0, n)), points=points, lines=lines, planes=tuple(planes), detection=detection,
-            report=report, hessian=hessian, metrics=Metrics(rmse_cm=rmse, ate_cm=ate),
+            keyframe=k,
+            timestamp_ns=int(self._stamp[k]),
+            source=self.source,
+            camera=self._world.camera,
+            estimate=estimate,
+            ground_truth=gt,
+            window=frozen(np.arange(w0, n)),
+            points=points,
+            lines=lines,
+            planes=tuple(planes),
+            detection=detection,
+            report=report,
+            hessian=hessian,
+            metrics=Metrics(rmse_cm=rmse, ate_cm=ate),
         )
 
 

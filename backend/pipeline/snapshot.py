@@ -37,7 +37,7 @@ class Trajectory:
     chunks: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]
 
     @staticmethod
-    def of(timestamp_ns: np.ndarray, R_world_camera: np.ndarray, t_world_camera: np.ndarray) -> "Trajectory":
+    def of(timestamp_ns: np.ndarray, R_world_camera: np.ndarray, t_world_camera: np.ndarray) -> Trajectory:
         return Trajectory(((frozen(timestamp_ns), frozen(R_world_camera), frozen(t_world_camera)),))
 
     def __len__(self) -> int:
@@ -67,11 +67,11 @@ class FrameTrajectory:
     Built on request at the end of a run (never part of a snapshot: it grows with every
     frame). `ground_truth` has NaN rows for frames without ground truth."""
 
-    frame: np.ndarray            # (F,) frame index in the source, increasing
+    frame: np.ndarray  # (F,) frame index in the source, increasing
     reference_keyframe: np.ndarray  # (F,) keyframe index each pose is relative to
-    is_keyframe: np.ndarray      # (F,) bool: the frame became that keyframe
-    estimate: Trajectory         # (F,) T_world_camera, timestamps ns
-    ground_truth: Trajectory     # (F,) T_world_camera (NaN: none)
+    is_keyframe: np.ndarray  # (F,) bool: the frame became that keyframe
+    estimate: Trajectory  # (F,) T_world_camera, timestamps ns
+    ground_truth: Trajectory  # (F,) T_world_camera (NaN: none)
 
     def __len__(self) -> int:
         return int(self.frame.shape[0])
@@ -82,11 +82,11 @@ class PointLandmarks:
     """Triangulated points: world positions (m), plane id (-1: none), anchor keyframe, and
     the state of the last detection that tested them (NOT_TESTED / INLIER / OUTLIER)."""
 
-    id: np.ndarray          # (P,) stable landmark ids
-    p_world: np.ndarray     # (P, 3)
-    plane: np.ndarray       # (P,)
-    anchor: np.ndarray      # (P,) keyframe index
-    detection: np.ndarray   # (P,) uint8
+    id: np.ndarray  # (P,) stable landmark ids
+    p_world: np.ndarray  # (P, 3)
+    plane: np.ndarray  # (P,)
+    anchor: np.ndarray  # (P,) keyframe index
+    detection: np.ndarray  # (P,) uint8
 
     def __len__(self) -> int:
         return int(self.id.shape[0])
@@ -114,7 +114,7 @@ class PlaneLandmark:
     detection: inlier fraction and the number of candidates tested."""
 
     id: int
-    n: np.ndarray           # (3,)
+    n: np.ndarray  # (3,)
     d: float
     hull_world: np.ndarray  # (H, 3)
     n_points: int
@@ -127,11 +127,11 @@ class PlaneLandmark:
 class Detection:
     """The co-planar detection run on the step's keyframe: one entry per candidate set."""
 
-    instance: tuple[int, ...]   # segmentation instance label of each candidate set
+    instance: tuple[int, ...]  # segmentation instance label of each candidate set
     candidates: tuple[int, ...]
     inliers: tuple[int, ...]
     accepted: tuple[bool, ...]
-    plane: tuple[int, ...]      # plane id it merged into or created (-1: rejected / skipped)
+    plane: tuple[int, ...]  # plane id it merged into or created (-1: rejected / skipped)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -215,7 +215,7 @@ class ImuState:
     gravity_world: np.ndarray
     velocity_true: np.ndarray | None = None
     bias_true: np.ndarray | None = None
-    first_init_keyframe: int = -1       # the first initialization (after a loss VIO starts again and initializes anew)
+    first_init_keyframe: int = -1  # the first initialization (after a loss VIO starts again and initializes anew)
     first_report: dict = dataclasses.field(default_factory=dict)
 
 
@@ -227,10 +227,10 @@ class Snapshot:
     keyframe: int
     timestamp_ns: int
     source: str
-    camera: PinholeCamera   # the (left) camera of every keyframe
+    camera: PinholeCamera  # the (left) camera of every keyframe
     estimate: Trajectory
     ground_truth: Trajectory | None
-    window: np.ndarray      # (W,) keyframe indices, ascending
+    window: np.ndarray  # (W,) keyframe indices, ascending
     points: PointLandmarks
     lines: LineLandmarks
     planes: tuple[PlaneLandmark, ...]
@@ -239,12 +239,12 @@ class Snapshot:
     hessian: HessianStructure | None
     metrics: Metrics
     message: str = ""
-    image: KeyframeImage | None = None   # image pipelines only
-    tracking: Tracking | None = None     # image pipelines only
-    imu: ImuState | None = None          # VIO only
+    image: KeyframeImage | None = None  # image pipelines only
+    tracking: Tracking | None = None  # image pipelines only
+    imu: ImuState | None = None  # VIO only
 
     @property
-    def variant(self) -> str:
+    def variant(self) -> Variant:
         return self.report.variant
 
     def plane_by_id(self) -> dict[int, PlaneLandmark]:

@@ -64,8 +64,8 @@ from backend.mapping import coplanar
 from backend.mapping.map import KeyframeObservations, Map
 from backend.mapping.window import Window, WindowSettings
 from backend.optim.problem import build_problem
-from backend.optim.variant import Variant
 from backend.optim.structure import HessianStructure, hessian_structure
+from backend.optim.variant import Variant
 from backend.pipeline.engine import EndOfSequence, EngineCheckpoint
 from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED, draw_keyframe_image
 from backend.pipeline.snapshot import (
@@ -83,7 +83,6 @@ from backend.pipeline.stages.planes import FeatureStates, detect_planes, segment
 from backend.pipeline.stages.snapshot import build_snapshot
 from backend.pipeline.stages.solve import SolveSettings, VisualWindow, WindowExtension, solve_window
 from backend.pipeline.tracking import match_by_projection, merge_matches, pixel_errors, refine_pose, relocalize
-
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,7 +154,15 @@ class StereoSettings:
 class StereoEngine:
     """The stereo pipeline (implements :class:`~backend.pipeline.engine.Engine`)."""
 
-    def __init__(self, source: StereoSource, *, settings: StereoSettings = StereoSettings(), name: str = "stereo sequence", segmenter: PlaneSegmenter | None = None, on_frame: Callable[[int], None] | None = None) -> None:
+    def __init__(
+        self,
+        source: StereoSource,
+        *,
+        settings: StereoSettings = StereoSettings(),
+        name: str = "stereo sequence",
+        segmenter: PlaneSegmenter | None = None,
+        on_frame: Callable[[int], None] | None = None,
+    ) -> None:
         from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
 
         self.data_source = source
@@ -193,8 +200,18 @@ class StereoEngine:
     # attributes shared by reference (the input, settings, callbacks, the last immutable
     # snapshot). Every attribute is one of the three (tests/backend/pipeline/test_checkpoints.py).
     STATE: tuple[str, ...] = (
-        "_next_frame", "_variant", "_local_points", "_local_lines", "_frame_poses", "_last_kf_tracked", "_window", "_messages",
-        "_det_state", "_instance_plane", "_new_point_kp", "_line_seg_index",
+        "_next_frame",
+        "_variant",
+        "_local_points",
+        "_local_lines",
+        "_frame_poses",
+        "_last_kf_tracked",
+        "_window",
+        "_messages",
+        "_det_state",
+        "_instance_plane",
+        "_new_point_kp",
+        "_line_seg_index",
     )
     SHARED: tuple[str, ...] = ("data_source", "settings", "_name", "segmenter", "camera", "on_frame", "_last")
 
@@ -295,8 +312,11 @@ class StereoEngine:
         kf_frame = self.map.keyframe_frame[:]
         is_kf = kf_frame[ref] == frame
         return FrameTrajectory(
-            frame=frozen(frame), reference_keyframe=frozen(ref), is_keyframe=frozen(is_kf),
-            estimate=Trajectory.of(stamp, R, t), ground_truth=Trajectory.of(stamp.copy(), R_gt, t_gt),
+            frame=frozen(frame),
+            reference_keyframe=frozen(ref),
+            is_keyframe=frozen(is_kf),
+            estimate=Trajectory.of(stamp, R, t),
+            ground_truth=Trajectory.of(stamp.copy(), R_gt, t_gt),
         )
 
     def compare_hessians(self, variants: tuple[Variant, ...]) -> dict[Variant, HessianStructure]:
@@ -324,7 +344,7 @@ class StereoEngine:
         (j0, R0, t0) = self._frame_poses[-2]
         return _extrapolate(R0, t0, R1, t1, (i - j1) / max(j1 - j0, 1))
 
-    def _track(self, i: int, kp: Keypoints) -> "_Tracked":
+    def _track(self, i: int, kp: Keypoints) -> _Tracked:
         """Pose of frame i against the local map (module docstring)."""
         s = self.settings
         cam = self.camera
@@ -372,8 +392,9 @@ class StereoEngine:
         seen = self.map.observations[self.keyframes - 1].point_id
         return np.flatnonzero(np.isin(self._local_points, seen[self.map.points.ok[seen]]))
 
-    def _refine(self, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, match: np.ndarray, *, widen: bool = False,
-                min_inliers: int | None = None, keep_matches: bool = False) -> "_Tracked":
+    def _refine(
+        self, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, match: np.ndarray, *, widen: bool = False, min_inliers: int | None = None, keep_matches: bool = False
+    ) -> _Tracked:
         """Refine from `match`; where that leaves fewer than twice the inliers needed (always
         with `widen`: a pose from a subset of the map), search again around the refined pose
         (`refine_radius_px`) and refine once more. `min_inliers`: what tracking needs (default
@@ -399,7 +420,7 @@ class StereoEngine:
         inliers = int(np.count_nonzero(match >= 0))
         return _Tracked(R, t, match, inliers, inliers >= need)
 
-    def _keyframe_reason(self, i: int, kp: Keypoints, tracked: "_Tracked") -> str:
+    def _keyframe_reason(self, i: int, kp: Keypoints, tracked: _Tracked) -> str:
         """Why frame i becomes a keyframe ("" if it does not)."""
         s = self.settings
         if not tracked.ok:
@@ -414,7 +435,7 @@ class StereoEngine:
             return "fast motion"
         return ""
 
-    def _kept_in_view_next(self, i: int, tracked: "_Tracked") -> float:
+    def _kept_in_view_next(self, i: int, tracked: _Tracked) -> float:
         """Fraction of frame i's tracked map points that stay in the image (depth above
         `min_depth_m`) at the next frame's pose as the constant-velocity model predicts it
         from the previous frame and frame i. 1 without a previous frame."""
@@ -430,7 +451,22 @@ class StereoEngine:
 
     # ------------------------------------------------------------------ keyframes
 
-    def _keyframe(self, i: int, left: np.ndarray, right: np.ndarray, kp: Keypoints, tracked: "_Tracked", timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, message: str, reason: str) -> Snapshot:
+    def _keyframe(
+        self,
+        i: int,
+        left: np.ndarray,
+        right: np.ndarray,
+        kp: Keypoints,
+        tracked: _Tracked,
+        timing: dict[str, float],
+        t_start: float,
+        *,
+        frames: int,
+        lost: int,
+        reinitializations: int,
+        message: str,
+        reason: str,
+    ) -> Snapshot:
         s = self.settings
         cam = self.camera
         use_lines = self._variant.with_lines or not s.skip_unused_stages
@@ -464,7 +500,7 @@ class StereoEngine:
         ml = np.flatnonzero(l_match >= 0)
         if len(mp) >= s.min_tracking_inliers:
             lines_world = (self.map.lines.m[local_l[ml]], self.map.lines.v[local_l[ml]]) if len(ml) else None
-            seg_uv = np.concatenate([segs.left.start[l_match[ml]], segs.left.end[l_match[ml]]], axis=1) if len(ml) else None
+            seg_uv = np.concatenate([segs.left.start[l_match[ml]], segs.left.end[l_match[ml]]], axis=1) if len(ml) and segs is not None else None
             ref = refine_pose(cam, R, t, self.map.points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]], lines_world=lines_world, segments_uv=seg_uv, sigma_px=s.pixel_sigma, cauchy=s.cauchy)
             R, t = ref.R_world_camera, ref.t_world_camera
             err = pixel_errors(cam, R, t, self.map.points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]])
@@ -496,11 +532,18 @@ class StereoEngine:
         total = 1e3 * (time.perf_counter() - t_start) - timing["load"] * frames_per  # reading or rendering images is not the pipeline's
         timing["total"] = total
         timing["total_per_frame"] = total / frames_per
-        tracking = Tracking(frames=frames, lost_frames=lost, reinitializations=reinitializations, tracked_points=int(np.count_nonzero(p_match >= 0)), tracked_lines=int(np.count_nonzero(l_match >= 0)), keyframe_reason=reason)
+        tracking = Tracking(
+            frames=frames,
+            lost_frames=lost,
+            reinitializations=reinitializations,
+            tracked_points=int(np.count_nonzero(p_match >= 0)),
+            tracked_lines=int(np.count_nonzero(l_match >= 0)),
+            keyframe_reason=reason,
+        )
         self._last = self._snapshot(k, detection, self._det_state, report, hessian, image=image, tracking=tracking, message=message)
         return self._last
 
-    def _detect_and_solve(self, k: int, i: int, obs, new_points, new_lines, rng, timing: dict[str, float], *, images: tuple[np.ndarray, np.ndarray] | None):  # noqa: ANN001, ANN202
+    def _detect_and_solve(self, k: int, i: int, obs, new_points, new_lines, rng, timing: dict[str, float], *, images: tuple[np.ndarray, np.ndarray] | None):
         """Steps 4–6 for keyframe k (frame i): plane segmentation of `images` (the
         segmenter's left and right; None: no planes this keyframe) and co-planar detection,
         the window bundle adjustment, culling and the next local map (backend/pipeline/stages).
@@ -531,7 +574,9 @@ class StereoEngine:
         T_true = self.data_source.T_world_rect0[i] if bool(self.data_source.ground_truth_valid[i]) else None
         self.map.add_keyframe(i, R, t, stamp_ns=int(self.data_source.timestamps_ns[i]), T_world_true=T_true)
 
-    def _observe(self, k: int, R: np.ndarray, t: np.ndarray, kp: Keypoints, stereo, local_p: np.ndarray, p_match: np.ndarray, segs: StereoSegments | None, local_l: np.ndarray, l_match: np.ndarray) -> tuple[KeyframeObservations, np.ndarray, np.ndarray]:  # noqa: ANN001
+    def _observe(
+        self, k: int, R: np.ndarray, t: np.ndarray, kp: Keypoints, stereo, local_p: np.ndarray, p_match: np.ndarray, segs: StereoSegments | None, local_l: np.ndarray, l_match: np.ndarray
+    ) -> tuple[KeyframeObservations, np.ndarray, np.ndarray]:
         """Record keyframe k's observations of map landmarks and create new ones from stereo."""
         s = self.settings
         P, Lm = self.map.points, self.map.lines
@@ -546,8 +591,14 @@ class StereoEngine:
         fresh = np.flatnonzero(~claimed & stereo.matched & (z > s.min_depth_m) & (z < s.max_depth_m))
         self._new_point_kp = fresh
         new_points = P.add(
-            p_world=stereo.p_cam[fresh] @ R.T + t, ok=np.ones(len(fresh), bool), anchor=np.full(len(fresh), k), anchor_uv=stereo.uv_left[fresh],
-            anchor_ur=stereo.u_right[fresh], plane=np.full(len(fresh), -1), desc=kp.descriptors[fresh], n_kf=np.ones(len(fresh), np.int64),
+            p_world=stereo.p_cam[fresh] @ R.T + t,
+            ok=np.ones(len(fresh), bool),
+            anchor=np.full(len(fresh), k),
+            anchor_uv=stereo.uv_left[fresh],
+            anchor_ur=stereo.u_right[fresh],
+            plane=np.full(len(fresh), -1),
+            desc=kp.descriptors[fresh],
+            n_kf=np.ones(len(fresh), np.int64),
         )
         point_id = np.concatenate([tracked_ids, new_points])
         point_kp = np.concatenate([j, fresh])
@@ -577,8 +628,15 @@ class StereoEngine:
             m, v = line_geo.from_points(a_w, b_w)
             norm = np.linalg.norm(v, axis=1, keepdims=True)
             new_lines = Lm.add(
-                m=m / norm, v=v / norm, ok=np.ones(len(fresh_l), bool), anchor=np.full(len(fresh_l), k), anchor_uv=uv[fresh_l], anchor_ruv=ruv[fresh_l],
-                plane=np.full(len(fresh_l), -1), desc=left.descriptors[fresh_l], n_kf=np.ones(len(fresh_l), np.int64),
+                m=m / norm,
+                v=v / norm,
+                ok=np.ones(len(fresh_l), bool),
+                anchor=np.full(len(fresh_l), k),
+                anchor_uv=uv[fresh_l],
+                anchor_ruv=ruv[fresh_l],
+                plane=np.full(len(fresh_l), -1),
+                desc=left.descriptors[fresh_l],
+                n_kf=np.ones(len(fresh_l), np.int64),
             )
             line_id = np.concatenate([tracked_l, new_lines])
             sel = np.concatenate([jl, fresh_l])
@@ -651,11 +709,19 @@ class StereoEngine:
             seg_uv, seg_plane = np.zeros((0, 2, 2)), np.zeros(0, np.int64)
         instance_plane = self._instance_plane if masks is not None and len(self._instance_plane) == masks.count else None
         return draw_keyframe_image(
-            left, points_uv=kp.uv, point_status=status, segments_uv=seg_uv, segment_plane=seg_plane,
-            instance_labels=None if masks is None else masks.labels, instance_plane=instance_plane, scale=float(self.settings.image_scale or 1.0),
+            left,
+            points_uv=kp.uv,
+            point_status=status,
+            segments_uv=seg_uv,
+            segment_plane=seg_plane,
+            instance_labels=None if masks is None else masks.labels,
+            instance_plane=instance_plane,
+            scale=float(self.settings.image_scale or 1.0),
         )
 
-    def _snapshot(self, k: int, detection: Detection, det_state: tuple, report: OptimizationReport, hessian: HessianStructure | None, *, image: KeyframeImage | None, tracking: Tracking | None, message: str) -> Snapshot:
+    def _snapshot(
+        self, k: int, detection: Detection, det_state: tuple, report: OptimizationReport, hessian: HessianStructure | None, *, image: KeyframeImage | None, tracking: Tracking | None, message: str
+    ) -> Snapshot:
         w0, _ = self._window_range(k)
         return build_snapshot(self.map, k, w0, detection, det_state, report, hessian, source=self._name, image=image, tracking=tracking, message=message)
 

@@ -37,8 +37,15 @@ def reprojection(camera: PinholeCamera, R_world_camera: np.ndarray, t_world_came
     and depths (M,) of world points (M, 3) observed at `uv` (M, 2) in the left image."""
     M = len(p_world)
     res, J, depth = factors.point_reprojection(
-        camera, np.ascontiguousarray(p_world, dtype=float), np.zeros((M, 3, 1)), np.arange(M),
-        R_world_camera[None], t_world_camera[None], np.zeros(M, dtype=np.int64), np.zeros((M, 3)), uv,
+        camera,
+        np.ascontiguousarray(p_world, dtype=float),
+        np.zeros((M, 3, 1)),
+        np.arange(M),
+        R_world_camera[None],
+        t_world_camera[None],
+        np.zeros(M, dtype=np.int64),
+        np.zeros((M, 3)),
+        uv,
     )
     return res, J[:, :, 1:], depth
 
@@ -48,15 +55,26 @@ def _cauchy(s2: np.ndarray, c2: float) -> tuple[np.ndarray, np.ndarray]:
     return c2 * np.log1p(s2 / c2), 1.0 / (1.0 + s2 / c2)
 
 
-def line_reprojection(camera: PinholeCamera, R_world_camera: np.ndarray, t_world_camera: np.ndarray, m_world: np.ndarray, v_world: np.ndarray, segments_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def line_reprojection(
+    camera: PinholeCamera, R_world_camera: np.ndarray, t_world_camera: np.ndarray, m_world: np.ndarray, v_world: np.ndarray, segments_uv: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Endpoint-to-line residuals (M, 2) in pixels and their Jacobians (M, 2, 6) w.r.t. the
     pose's `(δθ, δt)` of world lines (Plücker, (M, 3) each) observed as left-image segments
     `segments_uv` (M, 4) = start and end pixels."""
     M = len(m_world)
     x_s, x_e = camera.normalize(segments_uv[:, :2]), camera.normalize(segments_uv[:, 2:])
     res, J = factors.line_reprojection(
-        camera, np.ascontiguousarray(m_world, dtype=float), np.ascontiguousarray(v_world, dtype=float), np.zeros((M, 6, 1)), np.arange(M),
-        R_world_camera[None], t_world_camera[None], np.zeros(M, dtype=np.int64), np.zeros((M, 3)), x_s, x_e,
+        camera,
+        np.ascontiguousarray(m_world, dtype=float),
+        np.ascontiguousarray(v_world, dtype=float),
+        np.zeros((M, 6, 1)),
+        np.arange(M),
+        R_world_camera[None],
+        t_world_camera[None],
+        np.zeros(M, dtype=np.int64),
+        np.zeros((M, 3)),
+        x_s,
+        x_e,
     )
     return res, J[:, :, 1:]
 
@@ -90,6 +108,7 @@ def refine_pose(
         res, J, depth = reprojection(camera, R_, t_, p_world, uv)
         valid = depth > 0
         if n_lines:
+            assert lines_world is not None and segments_uv is not None
             res_l, J_l = line_reprojection(camera, R_, t_, lines_world[0], lines_world[1], segments_uv)
             res, J = np.concatenate([res, res_l]), np.concatenate([J, J_l])
             valid = np.concatenate([valid, np.all(np.isfinite(res_l), axis=1)])
@@ -217,8 +236,14 @@ def pnp_ransac(camera: PinholeCamera, p_world: np.ndarray, uv: np.ndarray, *, mi
         return None
     cv2.setRNGSeed(seed)
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-        p_world.astype(np.float64), uv.astype(np.float64), camera.K, None,
-        iterationsCount=200, reprojectionError=3.0, confidence=0.999, flags=cv2.SOLVEPNP_EPNP,
+        p_world.astype(np.float64),
+        uv.astype(np.float64),
+        camera.K,
+        None,
+        iterationsCount=200,
+        reprojectionError=3.0,
+        confidence=0.999,
+        flags=cv2.SOLVEPNP_EPNP,
     )
     if not ok or inliers is None or len(inliers) < min_inliers:
         return None

@@ -65,14 +65,14 @@ from backend.frontend.segmentation import PlaneSegmenter
 from backend.geometry import line as line_geo
 from backend.geometry import so3
 from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, PreparedImuFactor, imu_factor, predict_state, preintegrate, preintegration_params
+from backend.mapping.map import KeyframeObservations
 from backend.mapping.triangulation import triangulate_lines, triangulate_two_views
+from backend.mapping.window import Window
 from backend.optim import inertial
 from backend.optim.marginalization import marginalize, remap
-from backend.mapping.map import KeyframeObservations
-from backend.mapping.window import Window
-from backend.pipeline.stages.solve import WindowExtension
 from backend.optim.problem import DistancePrior, ProblemData
 from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
+from backend.pipeline.stages.solve import WindowExtension
 from backend.pipeline.stereo_engine import (
     POINT_NEW,
     POINT_OUTLIER,
@@ -152,7 +152,7 @@ class VioSettings(StereoSettings):
 class VioEngine(StereoEngine):
     """The VIO pipeline (module docstring; implements :class:`~backend.pipeline.engine.Engine`)."""
 
-    def __init__(self, source, *, settings: VioSettings = VioSettings(), name: str = "VIO sequence", segmenter: PlaneSegmenter | None = None, on_frame=None) -> None:  # noqa: ANN001
+    def __init__(self, source, *, settings: VioSettings = VioSettings(), name: str = "VIO sequence", segmenter: PlaneSegmenter | None = None, on_frame=None) -> None:
         self.imu: ImuData = source.imu  # DatasetError (one line) without imu0
         self.imu_noise = source.imu_noise
         self.T_body_camera = source.T_body_rect0
@@ -168,16 +168,37 @@ class VioEngine(StereoEngine):
 
     STATE = (
         *StereoEngine.STATE,
-        "_vel", "_bias", "_imu_factors", "_prior", "_initialized", "_init_status", "_init_report", "_init_keyframe", "_first_init",
-        "_kf_features", "_kf_segments", "_bootstrapping", "_flow", "_restart_flow", "_ftracks", "_ftrack_image", "_track_kp", "_mflow", "_mflow_kp",
-        "_lost_run", "_last_frame_ns", "_R_flow", "_imu_only_run", "_marginalized_before",
+        "_vel",
+        "_bias",
+        "_imu_factors",
+        "_prior",
+        "_initialized",
+        "_init_status",
+        "_init_report",
+        "_init_keyframe",
+        "_first_init",
+        "_kf_features",
+        "_kf_segments",
+        "_bootstrapping",
+        "_flow",
+        "_restart_flow",
+        "_ftracks",
+        "_ftrack_image",
+        "_track_kp",
+        "_mflow",
+        "_mflow_kp",
+        "_lost_run",
+        "_last_frame_ns",
+        "_R_flow",
+        "_imu_only_run",
+        "_marginalized_before",
     )
     SHARED = (*StereoEngine.SHARED, "imu", "imu_noise", "T_body_camera", "imu_params")
 
     def reset(self) -> None:
         super().reset()
-        self._vel = []     # per keyframe (3,) m/s, world
-        self._bias = []    # per keyframe (6,) (b_a, b_g)
+        self._vel = []  # per keyframe (3,) m/s, world
+        self._bias = []  # per keyframe (6,) (b_a, b_g)
         self._imu_factors: dict[int, PreparedImuFactor] = {}  # k -> preintegration from keyframe k to k + 1
         self._prior: inertial.LinearPrior | None = None  # global keyframe and plane indices
         self._initialized = False
@@ -286,7 +307,7 @@ class VioEngine(StereoEngine):
         self._init_status = "structure from motion: waiting for parallax (after a loss)"
         self._marginalized_before = self.keyframes
 
-    def _bootstrap(self, i: int, kp: Keypoints, image: np.ndarray):  # noqa: ANN202
+    def _bootstrap(self, i: int, kp: Keypoints, image: np.ndarray):
         """Frame i against the segment's first keyframe, whose keypoints are followed frame to
         frame by pyramidal Lucas-Kanade flow (forward-backward checked): when the median
         rotation-compensated parallax reaches `init_parallax_px`, the relative pose from the
@@ -373,9 +394,7 @@ class VioEngine(StereoEngine):
             return kp, index
         which = np.array([p.class_id for p in points], np.int64)
         index[which] = len(kp.uv) + np.arange(len(points))
-        grown = Keypoints(
-            uv=np.concatenate([kp.uv, uv[which]]), descriptors=np.concatenate([kp.descriptors, desc]), octave=np.concatenate([kp.octave, np.zeros(len(points), kp.octave.dtype)])
-        )
+        grown = Keypoints(uv=np.concatenate([kp.uv, uv[which]]), descriptors=np.concatenate([kp.descriptors, desc]), octave=np.concatenate([kp.octave, np.zeros(len(points), kp.octave.dtype)]))
         return grown, index
 
     def _gyro_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray:
@@ -435,7 +454,9 @@ class VioEngine(StereoEngine):
 
     # ------------------------------------------------------------------ keyframes
 
-    def _vio_keyframe(self, i: int, left: np.ndarray, kp: Keypoints, tracked: _Tracked, timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, reason: str, bootstrap) -> Snapshot:  # noqa: ANN001
+    def _vio_keyframe(
+        self, i: int, left: np.ndarray, kp: Keypoints, tracked: _Tracked, timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, reason: str, bootstrap
+    ) -> Snapshot:
         s = self.settings
         use_lines = self._variant.with_lines or not s.skip_unused_stages
         use_planes = self._variant.uses_planes or not s.skip_unused_stages
@@ -491,7 +512,14 @@ class VioEngine(StereoEngine):
         total = 1e3 * (time.perf_counter() - t_start) - timing["load"] * frames_per
         timing["total"] = total
         timing["total_per_frame"] = total / frames_per
-        tracking = Tracking(frames=frames, lost_frames=lost, reinitializations=reinitializations, tracked_points=int(np.count_nonzero(p_match >= 0)), tracked_lines=int(np.count_nonzero(l_match >= 0)), keyframe_reason=reason)
+        tracking = Tracking(
+            frames=frames,
+            lost_frames=lost,
+            reinitializations=reinitializations,
+            tracked_points=int(np.count_nonzero(p_match >= 0)),
+            tracked_lines=int(np.count_nonzero(l_match >= 0)),
+            keyframe_reason=reason,
+        )
         self._last = self._snapshot(k, detection, self._det_state, report, hessian, image=image, tracking=tracking, message="; ".join(self._messages))
         return self._last
 
@@ -512,7 +540,9 @@ class VioEngine(StereoEngine):
         b = self._bias[k]
         return imu_factor(preintegrate(self.imu, int(self.map.keyframe_stamp_ns[k]), int(self.map.keyframe_stamp_ns[k + 1]), bias_accel=b[:3], bias_gyro=b[3:], params=self.imu_params))
 
-    def _observe_mono(self, k: int, kp: Keypoints, local_p: np.ndarray, p_match: np.ndarray, segments: Segments | None, local_l: np.ndarray, l_match: np.ndarray, bootstrap) -> tuple[KeyframeObservations, np.ndarray, np.ndarray]:  # noqa: ANN001
+    def _observe_mono(
+        self, k: int, kp: Keypoints, local_p: np.ndarray, p_match: np.ndarray, segments: Segments | None, local_l: np.ndarray, l_match: np.ndarray, bootstrap
+    ) -> tuple[KeyframeObservations, np.ndarray, np.ndarray]:
         """Keyframe k's observations of map landmarks, and new landmarks triangulated with
         the previous keyframe (or the initial pair's points)."""
         P, Lm = self.map.points, self.map.lines
@@ -740,11 +770,20 @@ class VioEngine(StereoEngine):
         pair with the previous keyframe, whatever k0). Returns their ids."""
         n = len(uv0)
         ids = self.map.points.add(
-            p_world=p_world, ok=np.ones(n, bool), anchor=np.full(n, k0), anchor_uv=uv0, anchor_ur=np.full(n, np.nan),
-            plane=np.full(n, -1), desc=desc, n_kf=np.full(n, 2, np.int64), born=np.full(n, k - 1),
+            p_world=p_world,
+            ok=np.ones(n, bool),
+            anchor=np.full(n, k0),
+            anchor_uv=uv0,
+            anchor_ur=np.full(n, np.nan),
+            plane=np.full(n, -1),
+            desc=desc,
+            n_kf=np.full(n, 2, np.int64),
+            born=np.full(n, k - 1),
         )
         o = self.map.observations[k0]
-        self.map.observations[k0] = KeyframeObservations(np.concatenate([o.point_id, ids]), np.concatenate([o.point_uv, uv0]), np.concatenate([o.point_ur, np.full(n, np.nan)]), o.line_id, o.line_uv, o.line_ruv)
+        self.map.observations[k0] = KeyframeObservations(
+            np.concatenate([o.point_id, ids]), np.concatenate([o.point_uv, uv0]), np.concatenate([o.point_ur, np.full(n, np.nan)]), o.line_id, o.line_uv, o.line_ruv
+        )
         return ids
 
     def _new_lines(self, k: int, prev: Segments, claimed_prev: np.ndarray, cur: Segments, claimed_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -796,11 +835,20 @@ class VioEngine(StereoEngine):
             return empty
         uv_prev = np.concatenate([prev.start[ia[sel]], prev.end[ia[sel]]], axis=1)
         ids = Lm.add(
-            m=m[sel], v=v[sel], ok=np.ones(len(sel), bool), anchor=np.full(len(sel), k - 1), anchor_uv=uv_prev, anchor_ruv=np.full((len(sel), 4), np.nan),
-            plane=np.full(len(sel), -1), desc=cur.descriptors[ib[sel]], n_kf=np.full(len(sel), 2, np.int64),
+            m=m[sel],
+            v=v[sel],
+            ok=np.ones(len(sel), bool),
+            anchor=np.full(len(sel), k - 1),
+            anchor_uv=uv_prev,
+            anchor_ruv=np.full((len(sel), 4), np.nan),
+            plane=np.full(len(sel), -1),
+            desc=cur.descriptors[ib[sel]],
+            n_kf=np.full(len(sel), 2, np.int64),
         )
         o = self.map.observations[k - 1]
-        self.map.observations[k - 1] = KeyframeObservations(o.point_id, o.point_uv, o.point_ur, np.concatenate([o.line_id, ids]), np.concatenate([o.line_uv, uv_prev]), np.concatenate([o.line_ruv, np.full((len(ids), 4), np.nan)]))
+        self.map.observations[k - 1] = KeyframeObservations(
+            o.point_id, o.point_uv, o.point_ur, np.concatenate([o.line_id, ids]), np.concatenate([o.line_uv, uv_prev]), np.concatenate([o.line_ruv, np.full((len(ids), 4), np.nan)])
+        )
         claimed_prev[ia[sel]] = True
         return ids, ib[sel]
 
@@ -908,8 +956,16 @@ class VioEngine(StereoEngine):
         A[9:12, 9:12] = np.eye(3) / s.bias_sigma_accel
         A[12:15, 12:15] = np.eye(3) / s.bias_sigma_gyro
         return inertial.LinearPrior(
-            pose_index=np.array([k]), inertial_index=np.array([k]), plane_index=np.zeros(0, np.int64), R=R[None].copy(), t=t[None].copy(),
-            inertial=np.r_[self._vel[k], self._bias[k]][None], plane_n=np.zeros((0, 3)), plane_d=np.zeros(0), A=A, b=np.zeros(15),
+            pose_index=np.array([k]),
+            inertial_index=np.array([k]),
+            plane_index=np.zeros(0, np.int64),
+            R=R[None].copy(),
+            t=t[None].copy(),
+            inertial=np.r_[self._vel[k], self._bias[k]][None],
+            plane_n=np.zeros((0, 3)),
+            plane_d=np.zeros(0),
+            A=A,
+            b=np.zeros(15),
         )
 
     def _init_truth(self, kfs: np.ndarray, result: Alignment) -> dict:
@@ -995,8 +1051,16 @@ class VioEngine(StereoEngine):
             plane_map[win.planes] = np.arange(len(win.planes))
             prior = remap(self._prior, pose_map=pose_map, plane_map=plane_map)
         ine = inertial.InertialData(
-            T_body_camera=self.T_body_camera, velocity=np.array([self._vel[k] for k in kfs]), bias=np.array([self._bias[k] for k in kfs]),
-            free=~data.fixed_poses, imu_i=imu_i, imu_j=imu_j, imu=factors_, dt_s=dt, noise=self.imu_noise, prior=prior,
+            T_body_camera=self.T_body_camera,
+            velocity=np.array([self._vel[k] for k in kfs]),
+            bias=np.array([self._bias[k] for k in kfs]),
+            free=~data.fixed_poses,
+            imu_i=imu_i,
+            imu_j=imu_j,
+            imu=factors_,
+            dt_s=dt,
+            noise=self.imu_noise,
+            prior=prior,
         )
         return dataclasses.replace(data, inertial=ine)
 
@@ -1013,7 +1077,7 @@ class VioEngine(StereoEngine):
             if np.max(np.abs(d[:3])) > s.rebias_accel or np.max(np.abs(d[3:])) > s.rebias_gyro:
                 self._imu_factors[int(a)] = self._preintegrate(int(a))
 
-    def after_solve(self, win: Window, problem, state) -> None:  # noqa: ANN001
+    def after_solve(self, win: Window, problem, state) -> None:
         """Velocities and biases back from the solution; marginalize when the window is full."""
         if not self._initialized or state.velocity is None:
             return
@@ -1028,12 +1092,14 @@ class VioEngine(StereoEngine):
             p_local = np.flatnonzero(self.map.points.anchor[win.points] == oldest)
             l_local = np.flatnonzero(self.map.lines.anchor[win.lines] == oldest)
             prior = marginalize(problem, state, poses=np.array([0]), points=p_local, lines=l_local)
-            self._prior = None if prior is None else dataclasses.replace(prior, pose_index=win.kf[prior.pose_index], inertial_index=win.kf[prior.inertial_index], plane_index=win.planes[prior.plane_index])
+            self._prior = (
+                None if prior is None else dataclasses.replace(prior, pose_index=win.kf[prior.pose_index], inertial_index=win.kf[prior.inertial_index], plane_index=win.planes[prior.plane_index])
+            )
             self._marginalized_before = oldest + 1
 
     # ------------------------------------------------------------------ snapshots
 
-    def _snapshot(self, k: int, detection: Detection, det_state: tuple, report, hessian, *, image, tracking, message: str) -> Snapshot:  # noqa: ANN001
+    def _snapshot(self, k: int, detection: Detection, det_state: tuple, report, hessian, *, image, tracking, message: str) -> Snapshot:
         snap = super()._snapshot(k, detection, det_state, report, hessian, image=image, tracking=tracking, message=message)
         return dataclasses.replace(snap, imu=self._imu_state(k))
 
@@ -1048,10 +1114,17 @@ class VioEngine(StereoEngine):
             at = np.clip(np.searchsorted(src.imu.timestamp_ns, self.map.keyframe_stamp_ns[: k + 1]), 0, len(src.imu.timestamp_ns) - 1)
             truth_b = np.concatenate([src.bias_accel[at], src.bias_gyro[at]], axis=1)
         return ImuState(
-            initialized=self._initialized, status=self._init_status, init_keyframe=self._init_keyframe, report=dict(self._init_report),
-            first_init_keyframe=self._first_init[0], first_report=dict(self._first_init[1]),
-            velocity_world=frozen(vel), bias=frozen(bias), gravity_world=frozen(np.array([0.0, 0.0, -9.81]) if self._initialized else np.full(3, np.nan)),
-            velocity_true=None if truth_v is None else frozen(truth_v), bias_true=None if truth_b is None else frozen(truth_b),
+            initialized=self._initialized,
+            status=self._init_status,
+            init_keyframe=self._init_keyframe,
+            report=dict(self._init_report),
+            first_init_keyframe=self._first_init[0],
+            first_report=dict(self._first_init[1]),
+            velocity_world=frozen(vel),
+            bias=frozen(bias),
+            gravity_world=frozen(np.array([0.0, 0.0, -9.81]) if self._initialized else np.full(3, np.nan)),
+            velocity_true=None if truth_v is None else frozen(truth_v),
+            bias_true=None if truth_b is None else frozen(truth_b),
         )
 
     def _check_imu_coverage(self) -> None:
@@ -1071,7 +1144,7 @@ class VioEngine(StereoEngine):
             raise DatasetError(label, f"IMU gap of {gaps[j] * 1e-6:.1f} ms after {stamps[inside][j]} ns, longer than a frame interval ({period * 1e-6:.1f} ms)")
 
 
-def rotation_free_parallax_px(camera, uv0: np.ndarray, uv1: np.ndarray) -> float:  # noqa: ANN001
+def rotation_free_parallax_px(camera, uv0: np.ndarray, uv1: np.ndarray) -> float:
     """Median pixel distance (image 1) between `uv1` and `uv0` moved by the rotation that
     best explains the pair alone (Kabsch on the unit rays, least squares): the parallax
     that only a translation with depth differences makes; 0 for fewer than 3 pairs."""

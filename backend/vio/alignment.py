@@ -91,17 +91,17 @@ class AlignmentSettings:
     """Options of :func:`align_visual_inertial` (see the module docstring for each check)."""
 
     min_keyframes: int = 4
-    gyro_bias_iterations: int = 4           # Gauss-Newton + re-preintegration rounds (step 1)
-    gravity_refine_iterations: int = 4      # tangent-space iterations (step 3)
+    gyro_bias_iterations: int = 4  # Gauss-Newton + re-preintegration rounds (step 1)
+    gravity_refine_iterations: int = 4  # tangent-space iterations (step 3)
     gravity_magnitude: float = GRAVITY_MAGNITUDE  # m/s²
-    gravity_norm_tolerance: float = 0.10    # relative, |g| of step 2 vs gravity_magnitude
-    min_accel_excitation: float = 0.05      # m/s², std of Δv/Δt over intervals (body frames)
-    max_scale_rel_std: float = 0.03         # σ_s / s from the least-squares covariance
+    gravity_norm_tolerance: float = 0.10  # relative, |g| of step 2 vs gravity_magnitude
+    min_accel_excitation: float = 0.05  # m/s², std of Δv/Δt over intervals (body frames)
+    max_scale_rel_std: float = 0.03  # σ_s / s from the least-squares covariance
     scale_range: tuple[float, float] = (1e-3, 1e3)  # accepted metric / visual ratio
-    max_gyro_bias: float = 0.5              # rad/s, any axis
+    max_gyro_bias: float = 0.5  # rad/s, any axis
     # Noise of the visual poses, for the weights (and so the scale's standard deviation):
     visual_rotation_sigma_deg: float = 0.2  # degrees, per keyframe and axis
-    visual_position_sigma: float = 0.01     # per keyframe and axis, fraction of the mean keyframe-to-keyframe distance
+    visual_position_sigma: float = 0.01  # per keyframe and axis, fraction of the mean keyframe-to-keyframe distance
 
     def __post_init__(self) -> None:
         if self.min_keyframes < 3:
@@ -255,7 +255,9 @@ def _R_world_c0(gravity_c0: np.ndarray, R_c0_body0: np.ndarray) -> np.ndarray:
     return R
 
 
-def _noise_covariance(pims: list[gtsam.PreintegratedImuMeasurements], R_c0_body: np.ndarray, dts: np.ndarray, *, rotation_sigma: float, position_sigma_metric: float, gravity_magnitude: float) -> np.ndarray:
+def _noise_covariance(
+    pims: list[gtsam.PreintegratedImuMeasurements], R_c0_body: np.ndarray, dts: np.ndarray, *, rotation_sigma: float, position_sigma_metric: float, gravity_magnitude: float
+) -> np.ndarray:
     """Covariance (6(K-1), 6(K-1)) of the right-hand sides of :func:`_linear_system`.
 
     Three sources: the preintegration (gtsam's `preintMeasCov`, position and velocity blocks,
@@ -271,7 +273,7 @@ def _noise_covariance(pims: list[gtsam.PreintegratedImuMeasurements], R_c0_body:
     for k, pim in enumerate(pims):
         rp, rv = slice(6 * k, 6 * k + 3), slice(6 * k + 3, 6 * k + 6)
         cov = pim.preintMeasCov()
-        C[6 * k:6 * k + 6, 6 * k:6 * k + 6] += cov[3:9, 3:9]
+        C[6 * k : 6 * k + 6, 6 * k : 6 * k + 6] += cov[3:9, 3:9]
         dt = dts[k]
         C[rp, rp] += np.eye(3) * ((0.5 * gravity_magnitude * dt**2 * rotation_sigma) ** 2 + 2.0 * sp2)
         C[rv, rv] += np.eye(3) * (gravity_magnitude * dt * rotation_sigma) ** 2
@@ -310,7 +312,9 @@ def _solve(A: np.ndarray, b: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.
     return x, cov, chi2_dof, condition
 
 
-def _linear_system(R_c0_body: np.ndarray, p_c0_cam: np.ndarray, p_body_cam: np.ndarray, dts: np.ndarray, dps: np.ndarray, dvs: np.ndarray, gravity_dir: np.ndarray | None, gravity_magnitude: float) -> tuple[np.ndarray, np.ndarray]:
+def _linear_system(
+    R_c0_body: np.ndarray, p_c0_cam: np.ndarray, p_body_cam: np.ndarray, dts: np.ndarray, dps: np.ndarray, dvs: np.ndarray, gravity_dir: np.ndarray | None, gravity_magnitude: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Rows of the VINS-Mono alignment in each interval's body frame b_k.
 
     Unknowns `[v_c0_0 .. v_c0_{K-1}, g-part, s]`: g-part is g_c0 (3) when `gravity_dir` is
@@ -333,13 +337,13 @@ def _linear_system(R_c0_body: np.ndarray, p_c0_cam: np.ndarray, p_body_cam: np.n
         Rt = R_c0_body[k].T
         dt = dts[k]
         rp, rv = slice(6 * k, 6 * k + 3), slice(6 * k + 3, 6 * k + 6)
-        A[rp, 3 * k:3 * k + 3] = Rt * dt
-        A[rp, 3 * K:3 * K + ng] = 0.5 * dt**2 * Rt @ G
+        A[rp, 3 * k : 3 * k + 3] = Rt * dt
+        A[rp, 3 * K : 3 * K + ng] = 0.5 * dt**2 * Rt @ G
         A[rp, -1] = -Rt @ (p_c0_cam[k + 1] - p_c0_cam[k])
         b[rp] = -dps[k] - (Rt @ R_c0_body[k + 1] - np.eye(3)) @ p_body_cam - 0.5 * dt**2 * Rt @ g_fixed
-        A[rv, 3 * k:3 * k + 3] = -Rt
-        A[rv, 3 * k + 3:3 * k + 6] = Rt
-        A[rv, 3 * K:3 * K + ng] = -dt * Rt @ G
+        A[rv, 3 * k : 3 * k + 3] = -Rt
+        A[rv, 3 * k + 3 : 3 * k + 6] = Rt
+        A[rv, 3 * K : 3 * K + ng] = -dt * Rt @ G
         b[rv] = dvs[k] + dt * Rt @ g_fixed
     return A, b
 
@@ -441,10 +445,10 @@ def align_visual_inertial(
     for _ in range(2):
         x, *_ = _solve(A, b, covariance(float(x[-1])))
     scale = float(x[-1])
-    gravity_c0 = x[3 * K:3 * K + 3]
+    gravity_c0 = x[3 * K : 3 * K + 3]
     g_norm = float(np.linalg.norm(gravity_c0))
     quality["gravity_norm_unrefined"] = g_norm
-    state.update(scale=scale, gravity_c0=gravity_c0, velocity_c0=x[:3 * K].reshape(K, 3))
+    state.update(scale=scale, gravity_c0=gravity_c0, velocity_c0=x[: 3 * K].reshape(K, 3))
     if not np.all(np.isfinite(x)):
         return result("non-finite linear solution")
     if abs(g_norm - settings.gravity_magnitude) > settings.gravity_norm_tolerance * settings.gravity_magnitude:
@@ -459,11 +463,11 @@ def align_visual_inertial(
         x, cov, chi2_dof, condition = _solve(A, b, C)
         scale = float(x[-1])
         if iteration < settings.gravity_refine_iterations:
-            g = settings.gravity_magnitude * gravity_dir + _tangent_basis(gravity_dir) @ x[3 * K:3 * K + 2]
+            g = settings.gravity_magnitude * gravity_dir + _tangent_basis(gravity_dir) @ x[3 * K : 3 * K + 2]
             gravity_dir = g / np.linalg.norm(g)
     residual = (A @ x - b).reshape(K - 1, 2, 3)
     gravity_c0 = settings.gravity_magnitude * gravity_dir
-    velocity_c0 = x[:3 * K].reshape(K, 3)
+    velocity_c0 = x[: 3 * K].reshape(K, 3)
     scale_rel_std = float(np.sqrt(max(cov[-1, -1], 0.0)) / abs(scale)) if scale != 0 else float("inf")
     quality.update(
         position_residual_rms_m=float(np.sqrt(np.mean(residual[:, 0] ** 2))),

@@ -15,8 +15,8 @@ import pytest
 from app import cli
 from backend.eval import montecarlo, sequences
 from backend.optim.problem import build_problem
-from backend.optim.variant import VARIANTS
 from backend.optim.structure import hessian_structure
+from backend.optim.variant import VARIANTS
 from tests.paper import PAPER_COUNTS_B as PAPER_COUNTS
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -87,6 +87,7 @@ def test_sim_prints_a_table_with_every_variant(sim_b: dict) -> None:
 
 
 # ------------------------------------------------------------------ bad input
+
 
 def _bad_input_cases(tmp: pathlib.Path) -> dict[str, tuple[list[str], list[str], pathlib.Path]]:
     """name -> (extra arguments, words the error must mention, the JSON path that must not appear)."""
@@ -161,7 +162,10 @@ def test_console_script_reports_bad_input(tmp_path: pathlib.Path) -> None:
     json_path = tmp_path / "out.json"
     proc = subprocess.run(
         [str(CONSOLE_SCRIPT), "sim", "--sequence", "b", "--runs", "1", "--variants", "P-wo,P-x", "--json", str(json_path)],
-        capture_output=True, text=True, timeout=120, cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
     )
     assert proc.returncode == 2
     assert proc.stdout == ""
@@ -170,6 +174,7 @@ def test_console_script_reports_bad_input(tmp_path: pathlib.Path) -> None:
 
 
 # ------------------------------------------------------------------ Hessian structure
+
 
 def test_w_hessian_is_smaller_and_sparser() -> None:
     world = sequences.make_world("b", seed=0)

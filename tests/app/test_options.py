@@ -9,6 +9,7 @@ import pytest
 
 from app import cli
 
+
 @pytest.mark.parametrize(
     ("argv", "words"),
     [
@@ -54,7 +55,7 @@ def test_bad_paths_are_one_line(argv: list[str], words: list[str], tmp_path: pat
     assert list(tmp_path.iterdir()) == []  # nothing half-written
 
 
-def _scene_text(change) -> str:  # noqa: ANN001
+def _scene_text(change) -> str:
     import json
 
     from backend.data.scenes import builtin_scene, scene_to_dict
@@ -64,7 +65,7 @@ def _scene_text(change) -> str:  # noqa: ANN001
     return json.dumps(data)
 
 
-def _set(path: tuple, value: object):  # noqa: ANN202
+def _set(path: tuple, value: object):
     def change(data: dict) -> None:
         target = data
         for key in path[:-1]:

@@ -25,13 +25,35 @@ from app import cli
 
 CONSOLE_SCRIPT = pathlib.Path(sys.executable).parent / "coplanar"
 CONTRACT_TIMING = ("point_dm", "tracking", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame", "all_stages")
-METRICS_KEYS = ("source", "variant", "frames", "keyframes", "ate_rmse_cm", "rmse_cm", "planes", "points", "lines", "lost_frames",
-                "reinitializations", "timing_ms", "messages", "trajectory_poses", "frames_tracked", "frames_evaluated",
-                "ate_sim3_rmse_cm", "rpe_cm_per_m", "rpe_delta_m", "rpe_pairs", "keyframe_ate_rmse_cm", "keyframe_rmse_cm")
+METRICS_KEYS = (
+    "source",
+    "variant",
+    "frames",
+    "keyframes",
+    "ate_rmse_cm",
+    "rmse_cm",
+    "planes",
+    "points",
+    "lines",
+    "lost_frames",
+    "reinitializations",
+    "timing_ms",
+    "messages",
+    "trajectory_poses",
+    "frames_tracked",
+    "frames_evaluated",
+    "ate_sim3_rmse_cm",
+    "rpe_cm_per_m",
+    "rpe_delta_m",
+    "rpe_pairs",
+    "keyframe_ate_rmse_cm",
+    "keyframe_rmse_cm",
+)
 
 
 def _strict_json(text: str) -> dict:
     """json.loads that refuses NaN / Infinity (not JSON)."""
+
     def refuse(name: str) -> None:
         raise ValueError(f"{name} is not JSON")
 
@@ -181,8 +203,13 @@ def test_progress_bar_on_a_terminal_leaves_the_error_line_clean(euroc_room: path
     victim = _break_image(euroc_room, tmp_path / "seq")
     primary, secondary = pty.openpty()
     fcntl.ioctl(secondary, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
-    proc = subprocess.Popen([str(CONSOLE_SCRIPT), "run", "--dataset", str(tmp_path / "seq"), "--variant", "P-wo", "--out", str(tmp_path / "out")],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=secondary, cwd=tmp_path)
+    proc = subprocess.Popen(
+        [str(CONSOLE_SCRIPT), "run", "--dataset", str(tmp_path / "seq"), "--variant", "P-wo", "--out", str(tmp_path / "out")],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=secondary,
+        cwd=tmp_path,
+    )
     os.close(secondary)
     chunks = []
     while True:
@@ -207,16 +234,16 @@ class _SceneCuts:
     """A rendered sequence whose frames 20-39 come from another scene: tracking is lost at
     frames 20 and 40 with features in view, so the map is re-initialized twice."""
 
-    def __init__(self, first, second) -> None:  # noqa: ANN001
+    def __init__(self, first, second) -> None:
         self._first, self._second = first, second
 
     def __len__(self) -> int:
         return len(self._first)
 
-    def __getattr__(self, name: str):  # noqa: ANN204
+    def __getattr__(self, name: str):
         return getattr(self._first, name)
 
-    def rectified_pair(self, index: int):  # noqa: ANN201
+    def rectified_pair(self, index: int):
         return (self._second if 20 <= index < 40 else self._first).rectified_pair(index)
 
 
@@ -226,7 +253,7 @@ def test_tracking_loss_is_counted_and_reported(tmp_path: pathlib.Path, monkeypat
 
     real = synthetic.SyntheticSequence
 
-    def cut(scene, *, settings):  # noqa: ANN001, ANN202
+    def cut(scene, *, settings):
         other = real(builtin_scene("boxes"), settings=synthetic.SequenceSettings(duration_s=settings.duration_s, seed=5))
         return _SceneCuts(real(scene, settings=settings), other)
 
@@ -347,10 +374,13 @@ def test_fast_and_suddenly_changing_motion_is_tracked_without_reinitializing(tmp
     assert any("relocalized by PnP" in m for m in metrics["messages"])  # the fallback was needed
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["--scene", "room", "--stride", "0"], ["--stride", "0", "at least 1"]),
-    (["--scene", "mc-a", "--stride", "2"], ["--stride", "2", "mc-a"]),
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--scene", "room", "--stride", "0"], ["--stride", "0", "at least 1"]),
+        (["--scene", "mc-a", "--stride", "2"], ["--stride", "2", "mc-a"]),
+    ],
+)
 def test_bad_stride_is_one_error_line(argv: list[str], words: list[str], tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["run", *argv, "--variant", "PL-w", "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -367,11 +397,14 @@ def test_learned_segmenter_runs_the_stereo_pipeline(tmp_path: pathlib.Path) -> N
     assert metrics["planes"] >= 2 and metrics["timing_ms"]["plane_seg"] > 0
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["--scene", "room", "--segmenter-model", "x.onnx"], ["--segmenter-model", "only with --segmenter learned"]),
-    (["--scene", "mc-a", "--segmenter", "learned"], ["--segmenter", "mc-a"]),
-    (["--scene", "room", "--segmenter", "learned", "--segmenter-model", "MISSING"], ["MISSING", "model file missing"]),
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--scene", "room", "--segmenter-model", "x.onnx"], ["--segmenter-model", "only with --segmenter learned"]),
+        (["--scene", "mc-a", "--segmenter", "learned"], ["--segmenter", "mc-a"]),
+        (["--scene", "room", "--segmenter", "learned", "--segmenter-model", "MISSING"], ["MISSING", "model file missing"]),
+    ],
+)
 def test_bad_segmenter_options_are_one_error_line(argv: list[str], words: list[str], tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
     argv = [str(tmp_path / "none.onnx") if a == "MISSING" else a for a in argv]
     words = [str(tmp_path / "none.onnx") if w == "MISSING" else w for w in words]

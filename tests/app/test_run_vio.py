@@ -10,7 +10,7 @@ import shutil
 
 import numpy as np
 
-from tests.app.test_dataset_folders import _one_error_line, _run, rendered  # noqa: F401 (the 0.5 s room folder, with imu0)
+from tests.app.test_dataset_folders import _one_error_line, _run, rendered  # noqa: F401 - the 0.5 s room folder with imu0, a fixture
 
 
 def test_vio_without_imu0_is_one_line(rendered: pathlib.Path, tmp_path: pathlib.Path) -> None:

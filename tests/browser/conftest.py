@@ -14,8 +14,14 @@ import pytest
 
 CHROMIUM = pathlib.Path(os.environ.get("COPLANAR_CHROMIUM", "/usr/bin/chromium"))
 FLAGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
 ]
 TIMEOUT_MS = 60_000
 
@@ -54,7 +60,7 @@ def nothing_refused(request: pytest.FixtureRequest) -> Iterator[None]:
     _started.clear()
 
 
-def start_debugger(*, sequence: str = "a", **engine_options: object):  # noqa: ANN201
+def start_debugger(*, sequence: str = "a", **engine_options: object):
     """A debugger on a free port over the Monte-Carlo engine, with the HDRI off (it stalls
     software rendering)."""
     from backend.pipeline.sim_engine import SimEngine, SimSettings
@@ -66,7 +72,7 @@ def start_debugger(*, sequence: str = "a", **engine_options: object):  # noqa: A
     return debugger
 
 
-def start_served(*argv: str):  # noqa: ANN201
+def start_served(*argv: str):
     """A debugger on a free port over the engine `coplanar serve ARGV` builds, HDRI off."""
     from app.cli import build_parser
     from app.serve_command import build_engine
@@ -85,7 +91,7 @@ def debugger() -> Iterator[object]:
     d.stop()
 
 
-def open_page(browser, debugger, *, width: int = 1400, height: int = 900):  # noqa: ANN001, ANN201
+def open_page(browser, debugger, *, width: int = 1400, height: int = 900):
     page = browser.new_page(viewport={"width": width, "height": height}, accept_downloads=True)
     page.set_default_timeout(TIMEOUT_MS)
     page.goto(f"http://127.0.0.1:{debugger.port}/")
@@ -93,20 +99,20 @@ def open_page(browser, debugger, *, width: int = 1400, height: int = 900):  # no
     return page
 
 
-def field(page, label: str):  # noqa: ANN001, ANN201
+def field(page, label: str):
     """The input of the GUI row labelled `label` (viser rows: a label and an input)."""
     lab = page.locator("label").filter(has_text=re.compile(f"^{re.escape(label)}$"))
     return lab.locator("xpath=ancestor::div[contains(@class,'mantine-Flex-root')][1]").locator("input:not([type=hidden])").first
 
 
-def wait_shown(page, text: str) -> None:  # noqa: ANN001
+def wait_shown(page, text: str) -> None:
     """Wait until the 'Shown' field (updated last in every scene update) reads `text`."""
     from playwright.sync_api import expect
 
     expect(field(page, "Shown")).to_have_value(text, timeout=TIMEOUT_MS)
 
 
-def close_notifications(page) -> None:  # noqa: ANN001
+def close_notifications(page) -> None:
     """Close notifications such as Chromium's "software WebGL" before a screenshot."""
     close = page.locator(".mantine-Notification-closeButton")
     for i in range(close.count()):

@@ -9,7 +9,6 @@ import pathlib
 import re
 
 import numpy as np
-import pytest
 
 from tests.browser.conftest import close_notifications, field, open_page, start_debugger, wait_shown
 
@@ -22,7 +21,7 @@ def _saturated_pixels(png: bytes) -> int:
     return int(np.sum(rgb.max(axis=2) - rgb.min(axis=2) > 80))
 
 
-def _legend(page) -> tuple[str, int, int]:  # noqa: ANN001
+def _legend(page) -> tuple[str, int, int]:
     """Variant, items and params of the Hessian legend (its tab in the left panel)."""
     page.get_by_role("tab", name="Hessian").click()
     text = page.get_by_text(re.compile(r"^P[L]?-(wo|r|w): H = JᵀJ of the window, \d+ items, \d+ params")).first.inner_text()
@@ -31,11 +30,11 @@ def _legend(page) -> tuple[str, int, int]:  # noqa: ANN001
     return m.group(1), int(m.group(2)), int(m.group(3))
 
 
-def _image_sources(page) -> list[str]:  # noqa: ANN001
+def _image_sources(page) -> list[str]:
     return page.locator("img").evaluate_all("els => els.map(e => e.src)")
 
 
-def test_step_switch_scrub_export(browser, debugger) -> None:  # noqa: ANN001
+def test_step_switch_scrub_export(browser, debugger) -> None:
     from plyfile import PlyData
 
     page = open_page(browser, debugger)
@@ -99,7 +98,7 @@ def test_step_switch_scrub_export(browser, debugger) -> None:  # noqa: ANN001
     page.close()
 
 
-def test_two_tabs_stay_in_sync(browser, debugger) -> None:  # noqa: ANN001
+def test_two_tabs_stay_in_sync(browser, debugger) -> None:
     first = open_page(browser, debugger)
     second = open_page(browser, debugger)
     first.get_by_role("button", name="Step").click()
@@ -115,12 +114,12 @@ def test_two_tabs_stay_in_sync(browser, debugger) -> None:  # noqa: ANN001
     second.close()
 
 
-def test_error_in_a_step_pauses_and_keeps_serving(browser, debugger, monkeypatch) -> None:  # noqa: ANN001
+def test_error_in_a_step_pauses_and_keeps_serving(browser, debugger, monkeypatch) -> None:
     page = open_page(browser, debugger)
     real_step = debugger.engine.step
     calls = {"n": 0}
 
-    def failing_step():  # noqa: ANN202
+    def failing_step():
         calls["n"] += 1
         if calls["n"] == 1:
             raise FloatingPointError("singular window")
@@ -134,7 +133,7 @@ def test_error_in_a_step_pauses_and_keeps_serving(browser, debugger, monkeypatch
     page.close()
 
 
-def test_readme_screenshot(browser, tmp_path) -> None:  # noqa: ANN001
+def test_readme_screenshot(browser, tmp_path) -> None:
     """The README's picture: 45 keyframes of sequence a with every layer on. Written to
     $COPLANAR_README_SCREENSHOT when set (docs/debugger.png), else to a temporary file."""
     from PIL import Image
@@ -159,7 +158,7 @@ def test_readme_screenshot(browser, tmp_path) -> None:  # noqa: ANN001
         debugger.stop()
 
 
-def test_play_pause_layers_and_reset(browser, debugger) -> None:  # noqa: ANN001
+def test_play_pause_layers_and_reset(browser, debugger) -> None:
     page = open_page(browser, debugger)
     play = field(page, "Play")
     play.check()

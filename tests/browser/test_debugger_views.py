@@ -15,7 +15,7 @@ from tests.browser.conftest import close_notifications, field, open_page, start_
 from viewer.framing import snapshot_bounds
 
 
-def _choose(page, label: str, option: str) -> None:  # noqa: ANN001
+def _choose(page, label: str, option: str) -> None:
     field(page, label).click()
     page.get_by_role("option", name=option, exact=True).click()
 
@@ -29,7 +29,7 @@ def _coloured(png: bytes, *, magenta: bool = False) -> int:
     return int(np.sum(rgb.max(axis=2) - rgb.min(axis=2) > 80))
 
 
-def test_variants_are_kept_per_keyframe_and_the_status_stays_true(browser, debugger) -> None:  # noqa: ANN001
+def test_variants_are_kept_per_keyframe_and_the_status_stays_true(browser, debugger) -> None:
     page = open_page(browser, debugger)
     for k in range(12):
         page.get_by_role("button", name="Step").click()
@@ -55,7 +55,7 @@ def test_variants_are_kept_per_keyframe_and_the_status_stays_true(browser, debug
     page.close()
 
 
-def test_reset_clears_the_screen_and_export_says_why_it_has_nothing(browser, debugger) -> None:  # noqa: ANN001
+def test_reset_clears_the_screen_and_export_says_why_it_has_nothing(browser, debugger) -> None:
     page = open_page(browser, debugger)
     for k in range(5):
         page.get_by_role("button", name="Step").click()
@@ -76,7 +76,7 @@ def test_reset_clears_the_screen_and_export_says_why_it_has_nothing(browser, deb
     page.close()
 
 
-def test_first_view_frames_the_map_beside_the_panels(browser) -> None:  # noqa: ANN001
+def test_first_view_frames_the_map_beside_the_panels(browser) -> None:
     """The map's bounding box projects inside the 3D canvas, and the canvas lies between
     the docked panels instead of under them."""
     debugger = start_debugger()
@@ -97,7 +97,7 @@ def test_first_view_frames_the_map_beside_the_panels(browser) -> None:  # noqa: 
         debugger.stop()
 
 
-def _assert_framed(page, client, snapshot) -> None:  # noqa: ANN001
+def _assert_framed(page, client, snapshot) -> None:
     canvas = page.locator("canvas").filter(visible=True).last.bounding_box()
     panel = page.get_by_role("button", name="Step").bounding_box()
     assert canvas["x"] + canvas["width"] <= panel["x"] + 1  # the control panel is beside the view
@@ -120,7 +120,7 @@ def _assert_framed(page, client, snapshot) -> None:  # noqa: ANN001
     assert abs(cam.aspect - canvas["width"] / canvas["height"]) < 0.05
 
 
-def test_ab_run_draws_both_trajectories_and_fills_the_difference(browser, tmp_path) -> None:  # noqa: ANN001
+def test_ab_run_draws_both_trajectories_and_fills_the_difference(browser, tmp_path) -> None:
     """B = P-wo beside A = PL-w on sequence a; written to $COPLANAR_README_SCREENSHOT_AB when
     set (docs/debugger_ab.png)."""
     debugger = start_debugger()
@@ -150,7 +150,7 @@ def test_ab_run_draws_both_trajectories_and_fills_the_difference(browser, tmp_pa
         debugger.stop()
 
 
-def test_plots_change_with_the_slider_and_keys_step_and_scrub(browser, debugger) -> None:  # noqa: ANN001
+def test_plots_change_with_the_slider_and_keys_step_and_scrub(browser, debugger) -> None:
     page = open_page(browser, debugger)
     for k in range(6):
         page.get_by_role("button", name="Step").click()
@@ -161,8 +161,7 @@ def test_plots_change_with_the_slider_and_keys_step_and_scrub(browser, debugger)
     page.get_by_role("tab", name="Large view").wait_for()
     # The comparison twice, in its tab and in the large view (whose image loads after the
     # view opens: wait for it rather than read the widths at once).
-    page.wait_for_function("() => { const w = [...document.querySelectorAll('img')].map(i => i.naturalWidth); "
-                           "return w.filter(x => x === Math.max(...w)).length >= 2; }", timeout=10_000)
+    page.wait_for_function("() => { const w = [...document.querySelectorAll('img')].map(i => i.naturalWidth); return w.filter(x => x === Math.max(...w)).length >= 2; }", timeout=10_000)
     page.get_by_role("button", name="Close").click()
     page.get_by_role("tab", name="Large view").wait_for(state="detached")
 
@@ -186,8 +185,9 @@ def test_plots_change_with_the_slider_and_keys_step_and_scrub(browser, debugger)
     page.keyboard.press("Shift+ArrowLeft")
     wait_shown(page, "5 (PL-w)")
     page.keyboard.press("Space")
-    page.wait_for_function("() => { const l = [...document.querySelectorAll('label')].find(l => l.textContent === 'Shown'); "
-                           "return parseInt(l.closest('.mantine-Flex-root').querySelector('input').value) >= 8; }")
+    page.wait_for_function(
+        "() => { const l = [...document.querySelectorAll('label')].find(l => l.textContent === 'Shown'); return parseInt(l.closest('.mantine-Flex-root').querySelector('input').value) >= 8; }"
+    )
     page.keyboard.press("Space")
     page.wait_for_timeout(500)
     debugger.wait_idle()

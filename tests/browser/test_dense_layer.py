@@ -10,7 +10,7 @@ import time
 from tests.browser.conftest import close_notifications, field, open_page, start_served, wait_shown
 
 
-def test_dense_layer_builds_in_the_background_and_reports_its_distance(browser, tmp_path) -> None:  # noqa: ANN001
+def test_dense_layer_builds_in_the_background_and_reports_its_distance(browser, tmp_path) -> None:
     debugger = start_served("--scene", "room", "--duration", "6")
     try:
         for _ in range(8):

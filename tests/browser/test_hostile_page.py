@@ -28,7 +28,7 @@ def hostile_site() -> Iterator[int]:
     """An unrelated site on another port: a page with nothing on it."""
 
     class Page(http.server.BaseHTTPRequestHandler):
-        def do_GET(self) -> None:  # noqa: N802 - http.server's name
+        def do_GET(self) -> None:
             body = b"<html><body>cute cats</body></html>"
             self.send_response(200)
             self.send_header("Content-Type", "text/html")
@@ -45,7 +45,7 @@ def hostile_site() -> Iterator[int]:
     server.shutdown()
 
 
-def test_a_page_from_another_site_cannot_open_the_debuggers_websocket(browser, debugger, hostile_site) -> None:  # noqa: ANN001
+def test_a_page_from_another_site_cannot_open_the_debuggers_websocket(browser, debugger, hostile_site) -> None:
     page = browser.new_page()
     page.set_default_timeout(TIMEOUT_MS)
     protocol = f"viser-v{viser.__version__}"
@@ -58,7 +58,7 @@ def test_a_page_from_another_site_cannot_open_the_debuggers_websocket(browser, d
     assert debugger.guard.figures()["handshakes_refused"] == 1
 
 
-def test_a_hostile_name_that_resolves_to_this_machine_gets_no_page(browser, debugger) -> None:  # noqa: ANN001
+def test_a_hostile_name_that_resolves_to_this_machine_gets_no_page(browser, debugger) -> None:
     """DNS rebinding: evil.example resolves to 127.0.0.1; its page would be same-origin with
     a websocket to evil.example:PORT. The Host header names it, and the debugger refuses."""
     rebound = browser.browser_type.launch(executable_path=str(CHROMIUM), args=[*FLAGS, "--host-resolver-rules=MAP evil.example 127.0.0.1"])

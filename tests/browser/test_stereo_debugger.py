@@ -11,7 +11,7 @@ import numpy as np
 from tests.browser.conftest import close_notifications, open_page, start_served, wait_shown
 
 
-def test_stereo_debugger_shows_keyframe_image_and_map(browser, tmp_path) -> None:  # noqa: ANN001
+def test_stereo_debugger_shows_keyframe_image_and_map(browser, tmp_path) -> None:
     """Twelve keyframes of the rendered room; written to $COPLANAR_README_SCREENSHOT_STEREO
     when set (docs/stereo_debugger.png), else to a temporary file."""
     from PIL import Image

@@ -11,7 +11,7 @@ import re
 from tests.browser.conftest import close_notifications, field, open_page, start_served, wait_shown
 
 
-def test_vio_debugger_steps_switches_variant_and_shows_the_imu_state(browser, tmp_path) -> None:  # noqa: ANN001
+def test_vio_debugger_steps_switches_variant_and_shows_the_imu_state(browser, tmp_path) -> None:
     debugger = start_served("--scene", "room", "--mode", "vio", "--speed", "2", "--duration", "4", "--segmenter", "oracle")
     try:
         page = open_page(browser, debugger, height=1250)

@@ -29,8 +29,13 @@ if PROFILE not in ("ci", "long"):
 def fuzz_settings(ci_examples: int) -> settings:
     """`ci_examples` examples in the CI profile, ten times as many in the long one."""
     long = PROFILE == "long"
-    return settings(max_examples=ci_examples * (10 if long else 1), deadline=None, derandomize=not long, database=None,
-                    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow, HealthCheck.data_too_large])
+    return settings(
+        max_examples=ci_examples * (10 if long else 1),
+        deadline=None,
+        derandomize=not long,
+        database=None,
+        suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow, HealthCheck.data_too_large],
+    )
 
 
 def run_cli(argv: list[str], capfd: pytest.CaptureFixture[str]) -> tuple[int, str]:

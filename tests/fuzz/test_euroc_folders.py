@@ -25,21 +25,46 @@ from tests.fuzz._support import check_outcome, fuzz_settings, run_cli
 CSV_FILES = ("mav0/cam0/data.csv", "mav0/cam1/data.csv", "mav0/imu0/data.csv", "mav0/state_groundtruth_estimate0/data.csv", "mav0/planes.csv")
 YAML_FILES = ("mav0/cam0/sensor.yaml", "mav0/cam1/sensor.yaml", "mav0/imu0/sensor.yaml")
 IMAGE_DIRS = ("mav0/cam0/data", "mav0/cam1/data", "mav0/depth0/data", "mav0/planes0/data")
-REMOVABLE = ("mav0/imu0", "mav0/cam1", "mav0/state_groundtruth_estimate0", "mav0/cam0/data.csv", "mav0/cam1/sensor.yaml",
-             "mav0/imu0/sensor.yaml", "mav0/planes.csv", "mav0/depth0", "mav0/cam0/data", "mav0")
+REMOVABLE = (
+    "mav0/imu0",
+    "mav0/cam1",
+    "mav0/state_groundtruth_estimate0",
+    "mav0/cam0/data.csv",
+    "mav0/cam1/sensor.yaml",
+    "mav0/imu0/sensor.yaml",
+    "mav0/planes.csv",
+    "mav0/depth0",
+    "mav0/cam0/data",
+    "mav0",
+)
 RUN_FILES = ("trajectory.txt", "keyframes.txt", "groundtruth.txt", "metrics.json", "map.ply", "points.ply", "lines.ply", "planes.ply", "cameras.ply")
 BAD_TOKENS = ("", " ", "nan", "NaN", "inf", "-inf", "1e400", "-1", "0", "-0", "abc", "1,2", "0x1F", "１２", "\t", "9" * 30, "1.5.3", "[1, 2]", "null", "-9e18")
 
 token = st.sampled_from(BAD_TOKENS) | st.text(max_size=12)
-csv_mutation = st.tuples(st.just("csv"), st.sampled_from(CSV_FILES),
-                         st.sampled_from(("field", "truncate", "delete", "duplicate", "swap", "garbage", "empty", "header", "extra_column", "fewer_columns")),
-                         st.integers(0, 10_000), st.integers(0, 20), token)
-yaml_mutation = st.tuples(st.just("yaml"), st.sampled_from(YAML_FILES),
-                          st.sampled_from(("delete_line", "extra_key", "value", "array_value", "truncate", "garbage", "empty", "repeat_key")),
-                          st.integers(0, 10_000), st.integers(0, 20), token)
-image_mutation = st.tuples(st.just("image"), st.sampled_from(IMAGE_DIRS),
-                           st.sampled_from(("zero", "text", "truncate", "resize", "colour", "depth16", "jpeg", "delete", "tiny")),
-                           st.integers(0, 10_000), st.integers(0, 20), st.just(""))
+csv_mutation = st.tuples(
+    st.just("csv"),
+    st.sampled_from(CSV_FILES),
+    st.sampled_from(("field", "truncate", "delete", "duplicate", "swap", "garbage", "empty", "header", "extra_column", "fewer_columns")),
+    st.integers(0, 10_000),
+    st.integers(0, 20),
+    token,
+)
+yaml_mutation = st.tuples(
+    st.just("yaml"),
+    st.sampled_from(YAML_FILES),
+    st.sampled_from(("delete_line", "extra_key", "value", "array_value", "truncate", "garbage", "empty", "repeat_key")),
+    st.integers(0, 10_000),
+    st.integers(0, 20),
+    token,
+)
+image_mutation = st.tuples(
+    st.just("image"),
+    st.sampled_from(IMAGE_DIRS),
+    st.sampled_from(("zero", "text", "truncate", "resize", "colour", "depth16", "jpeg", "delete", "tiny")),
+    st.integers(0, 10_000),
+    st.integers(0, 20),
+    st.just(""),
+)
 remove_mutation = st.tuples(st.just("remove"), st.sampled_from(REMOVABLE), st.just(""), st.just(0), st.just(0), st.just(""))
 mutations = st.lists(csv_mutation | yaml_mutation | image_mutation | remove_mutation, min_size=1, max_size=3)
 
@@ -72,7 +97,7 @@ def _mutate_csv(path: pathlib.Path, op: str, i: int, j: int, text: str) -> None:
     elif op == "extra_column":
         lines[k] += "," + (text or "1")
     elif op == "fewer_columns":
-        lines[k] = ",".join(lines[k].split(",")[:-1 - j % 3])
+        lines[k] = ",".join(lines[k].split(",")[: -1 - j % 3])
     path.write_text("\n".join(lines) + ("\n" if lines else ""))
 
 
@@ -144,7 +169,7 @@ def _mutate_image(folder: pathlib.Path, op: str, i: int, j: int) -> None:
         path.write_bytes(encoded.tobytes())
 
 
-def _apply(root: pathlib.Path, mutation: tuple) -> None:  # noqa: ANN001
+def _apply(root: pathlib.Path, mutation: tuple) -> None:
     kind, name, op, i, j, text = mutation
     target = root / name
     if not target.exists():
@@ -171,10 +196,10 @@ def sequence(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
 
 
 @fuzz_settings(ci_examples=150)
-@given(broken=mutations, mode=st.sampled_from(("stereo", "vio")), variant=st.sampled_from(("P-wo", "PL-w")),
-       segmenter=st.sampled_from((None, "learned")))
-def test_a_corrupted_euroc_folder_is_run_or_refused_in_one_line(sequence: pathlib.Path, tmp_path_factory: pytest.TempPathFactory, capfd: pytest.CaptureFixture[str],
-                                                               broken: list[tuple], mode: str, variant: str, segmenter: str | None) -> None:
+@given(broken=mutations, mode=st.sampled_from(("stereo", "vio")), variant=st.sampled_from(("P-wo", "PL-w")), segmenter=st.sampled_from((None, "learned")))
+def test_a_corrupted_euroc_folder_is_run_or_refused_in_one_line(
+    sequence: pathlib.Path, tmp_path_factory: pytest.TempPathFactory, capfd: pytest.CaptureFixture[str], broken: list[tuple], mode: str, variant: str, segmenter: str | None
+) -> None:
     work = tmp_path_factory.mktemp("case")
     root, out = work / "seq", work / "out"
     shutil.copytree(sequence, root)

@@ -20,19 +20,27 @@ from hypothesis import strategies as st
 from tests.fuzz._support import check_outcome, fuzz_settings, remove, run_cli, walk
 
 RUN_FILES = ("trajectory.txt", "keyframes.txt", "groundtruth.txt", "metrics.json", "map.ply", "points.ply", "lines.ply", "planes.ply", "cameras.ply")
-numbers = (st.floats(allow_nan=True, allow_infinity=True).map(repr) | st.integers(min_value=-(10**30), max_value=10**30).map(str)
-           | st.sampled_from(("nan", "inf", "-inf", "1e400", "-0", "0", "1", "0.5", "2", "1e-300", "0x10", "1_000", " 3", "٣")))
+numbers = (
+    st.floats(allow_nan=True, allow_infinity=True).map(repr)
+    | st.integers(min_value=-(10**30), max_value=10**30).map(str)
+    | st.sampled_from(("nan", "inf", "-inf", "1e400", "-0", "0", "1", "0.5", "2", "1e-300", "0x10", "1_000", " 3", "٣"))
+)
 paths = st.text(min_size=1, max_size=40) | st.sampled_from(("", "/", "/proc/nope/x", "/dev/null", "a" * 300, "x/" * 2000, "nul\x00byte", "."))
 values = numbers | st.text(max_size=20) | paths
 
 COMMANDS = {
-    "run": (["run", "--scene", "room", "--duration", "0.3", "--variant", "P-wo"], "--out",
-            ("--scene", "--duration", "--stride", "--speed", "--seed", "--window", "--mode", "--segmenter", "--segmenter-model", "--variant",
-             "--out", "--frames", "--keyframes")),
+    "run": (
+        ["run", "--scene", "room", "--duration", "0.3", "--variant", "P-wo"],
+        "--out",
+        ("--scene", "--duration", "--stride", "--speed", "--seed", "--window", "--mode", "--segmenter", "--segmenter-model", "--variant", "--out", "--frames", "--keyframes"),
+    ),
     "run-mc": (["run", "--scene", "mc-b", "--variant", "P-wo", "--keyframes", "5"], "--out", ("--seed", "--mislabel", "--window", "--keyframes", "--variant", "--out")),
     "render": (["render", "--scene", "room", "--duration", "0.05"], "--out", ("--scene", "--duration", "--seed", "--image-noise", "--blur", "--exposure", "--out")),
-    "sim": (["sim", "--sequence", "b", "--runs", "1", "--variants", "P-wo"], "--json",
-            ("--sequence", "--runs", "--seed", "--variants", "--solver", "--sigma-rel", "--json", "--plot", "--hessian-dir")),
+    "sim": (
+        ["sim", "--sequence", "b", "--runs", "1", "--variants", "P-wo"],
+        "--json",
+        ("--sequence", "--runs", "--seed", "--variants", "--solver", "--sigma-rel", "--json", "--plot", "--hessian-dir"),
+    ),
 }
 
 
@@ -44,14 +52,12 @@ def _long(option: str, value: str) -> bool:
         return False
     if not math.isfinite(x):
         return False
-    return (option == "--duration" and x > 0.3) or (option == "--runs" and x > 1) or (option in ("--keyframes", "--frames") and x > 8) \
-        or (option == "--window" and x > 50)
+    return (option == "--duration" and x > 0.3) or (option == "--runs" and x > 1) or (option in ("--keyframes", "--frames") and x > 8) or (option == "--window" and x > 50)
 
 
 @fuzz_settings(ci_examples=150)
 @given(command=st.sampled_from(sorted(COMMANDS)), data=st.data())
-def test_any_option_value_runs_or_is_refused_in_one_line(tmp_path_factory: pytest.TempPathFactory, capfd: pytest.CaptureFixture[str], command: str,
-                                                         data: st.DataObject) -> None:
+def test_any_option_value_runs_or_is_refused_in_one_line(tmp_path_factory: pytest.TempPathFactory, capfd: pytest.CaptureFixture[str], command: str, data: st.DataObject) -> None:
     base, out_option, options = COMMANDS[command]
     chosen = data.draw(st.dictionaries(st.sampled_from(options), values, min_size=1, max_size=3), label="options")
     for option, value in chosen.items():

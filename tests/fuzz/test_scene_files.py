@@ -60,8 +60,9 @@ def _apply(data: object, path: list[int], op: str, value: object, number: object
 
 @fuzz_settings(ci_examples=100)
 @given(edits=st.lists(edit, min_size=1, max_size=3), text_cut=st.none() | st.integers(0, 20_000), nesting=st.sampled_from((0, 0, 0, 50, 5000)))
-def test_a_corrupted_scene_file_renders_or_is_refused_in_one_line(tmp_path_factory: pytest.TempPathFactory, capfd: pytest.CaptureFixture[str],
-                                                                  edits: list[tuple], text_cut: int | None, nesting: int) -> None:
+def test_a_corrupted_scene_file_renders_or_is_refused_in_one_line(
+    tmp_path_factory: pytest.TempPathFactory, capfd: pytest.CaptureFixture[str], edits: list[tuple], text_cut: int | None, nesting: int
+) -> None:
     data = copy.deepcopy(BASE)
     for path, op, value, number in edits:
         data = _apply(data, path, op, value, number)

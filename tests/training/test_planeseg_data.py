@@ -9,7 +9,7 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "training"))
 
-from planeseg_data import IGNORE, INPUT_H, INPUT_W, NON_PLANAR, OUTPUT_H, OUTPUT_W, pseudo_labelled, rendered_samples  # noqa: E402
+from planeseg_data import IGNORE, INPUT_H, INPUT_W, NON_PLANAR, OUTPUT_H, OUTPUT_W, pseudo_labelled, rendered_samples
 
 
 def test_rendered_samples_are_reproducible_and_labelled() -> None:

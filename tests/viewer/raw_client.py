@@ -20,8 +20,15 @@ SUBPROTOCOL = f"viser-v{viser.__version__}"
 # A camera as a browser reports it: viser counts a client as connected (and runs GUI
 # callbacks for it) only after its first camera message.
 CAMERA: dict[str, Any] = {
-    "wxyz": [1.0, 0.0, 0.0, 0.0], "position": [0.0, 0.0, 5.0], "fov": 1.0, "near": 0.01, "far": 100.0,
-    "image_height": 600, "image_width": 800, "look_at": [0.0, 0.0, 0.0], "up_direction": [0.0, 0.0, 1.0],
+    "wxyz": [1.0, 0.0, 0.0, 0.0],
+    "position": [0.0, 0.0, 5.0],
+    "fov": 1.0,
+    "near": 0.01,
+    "far": 100.0,
+    "image_height": 600,
+    "image_width": 800,
+    "look_at": [0.0, 0.0, 0.0],
+    "up_direction": [0.0, 0.0, 1.0],
 }
 
 
@@ -45,7 +52,11 @@ class RawClient:
 
     def __init__(self, port: int, *, origin: str | None = None, address: str = "127.0.0.1", camera: bool = True) -> None:
         self.ws: ClientConnection = connect(
-            f"ws://{address}:{port}", origin=origin, subprotocols=[SUBPROTOCOL], open_timeout=10, max_size=None  # type: ignore[list-item]
+            f"ws://{address}:{port}",
+            origin=origin,
+            subprotocols=[SUBPROTOCOL],
+            open_timeout=10,
+            max_size=None,  # type: ignore[list-item]
         )
         self.messages: list[dict[str, Any]] = []
         self.read(until="ReplayDoneMessage")
@@ -130,8 +141,11 @@ def http_status(port: int, *, host: str, origin: str | None = None, websocket: b
         lines.append(f"Origin: {origin}")
     if websocket:
         lines += [
-            "Upgrade: websocket", "Connection: Upgrade", "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
-            "Sec-WebSocket-Version: 13", f"Sec-WebSocket-Protocol: {SUBPROTOCOL}",
+            "Upgrade: websocket",
+            "Connection: Upgrade",
+            "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+            "Sec-WebSocket-Version: 13",
+            f"Sec-WebSocket-Protocol: {SUBPROTOCOL}",
         ]
     with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
         s.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())

@@ -44,9 +44,12 @@ class ImageEngine:
         k = s.keyframe
         image = draw_keyframe_image(
             np.full((H, W), 100, np.uint8),
-            points_uv=np.array([[10.0 + 10.0 * k, 60.0]]), point_status=np.array([POINT_TRACKED], np.uint8),
-            segments_uv=np.zeros((0, 2, 2)), segment_plane=np.zeros(0, np.int64),
-            instance_labels=None, instance_plane=None,
+            points_uv=np.array([[10.0 + 10.0 * k, 60.0]]),
+            point_status=np.array([POINT_TRACKED], np.uint8),
+            segments_uv=np.zeros((0, 2, 2)),
+            segment_plane=np.zeros(0, np.int64),
+            instance_labels=None,
+            instance_plane=None,
         )
         tracking = Tracking(frames=20 + k, lost_frames=k, reinitializations=1, tracked_points=300 + k, tracked_lines=40)
         return dataclasses.replace(s, image=image, tracking=tracking, message=f"tracking lost at frame {k}: re-initialized")
@@ -95,7 +98,7 @@ def _green_column(rgb: np.ndarray) -> int:
     return int(round(np.flatnonzero(row[:, 1] - row[:, 0] > 60).mean()))
 
 
-def test_keyframe_image_is_shown_and_follows_scrubbing(image_debugger) -> None:  # noqa: ANN001
+def test_keyframe_image_is_shown_and_follows_scrubbing(image_debugger) -> None:
     d = image_debugger
     assert not d.keyframe_tab.image.visible  # nothing shown yet
     for _ in range(3):
@@ -122,7 +125,7 @@ def test_keyframe_image_is_shown_and_follows_scrubbing(image_debugger) -> None: 
     assert "tracking lost at frame 0" in d.report_tab.markdown.content
 
 
-def test_keyframe_image_is_hidden_for_the_monte_carlo_engine(sim_debugger) -> None:  # noqa: ANN001
+def test_keyframe_image_is_hidden_for_the_monte_carlo_engine(sim_debugger) -> None:
     d = sim_debugger
     d.submit("step")
     d.wait_idle()
@@ -131,7 +134,7 @@ def test_keyframe_image_is_hidden_for_the_monte_carlo_engine(sim_debugger) -> No
     assert "**tracking**" not in d.report_tab.markdown.content
 
 
-def test_keyframe_image_hides_again_for_a_snapshot_without_one(image_debugger) -> None:  # noqa: ANN001
+def test_keyframe_image_hides_again_for_a_snapshot_without_one(image_debugger) -> None:
     d = image_debugger
     d.submit("step")
     d.wait_idle()
@@ -143,7 +146,7 @@ def test_keyframe_image_hides_again_for_a_snapshot_without_one(image_debugger) -
     assert "tracking lost" not in d.report_tab.markdown.content
 
 
-def test_switching_variants_keeps_each_result_and_returns_to_it(sim_debugger) -> None:  # noqa: ANN001
+def test_switching_variants_keeps_each_result_and_returns_to_it(sim_debugger) -> None:
     """Cycle the six variants at the newest keyframe and return: every variant started
     from the step's state, the stepped result comes back unchanged, and scrubbing back
     to that keyframe later still shows any variant computed there."""
@@ -180,7 +183,7 @@ def test_switching_variants_keeps_each_result_and_returns_to_it(sim_debugger) ->
     assert d.shown is d.history.variants_at(k)["PL-r"]
 
 
-def test_status_is_not_overwritten_by_a_late_progress_message(sim_debugger, monkeypatch) -> None:  # noqa: ANN001
+def test_status_is_not_overwritten_by_a_late_progress_message(sim_debugger, monkeypatch) -> None:
     """The progress message (after PROGRESS_DELAY_S) must never land after the final
     status: with the delay at 1 ms and slowed re-optimizations, 20 switches end with the
     real status each time."""
@@ -194,7 +197,7 @@ def test_status_is_not_overwritten_by_a_late_progress_message(sim_debugger, monk
     monkeypatch.setattr(status_module, "PROGRESS_DELAY_S", 0.001)
     real = d.engine.reoptimize
 
-    def slow():  # noqa: ANN202
+    def slow():
         _time.sleep(0.01)
         return real()
 
@@ -209,7 +212,7 @@ def test_status_is_not_overwritten_by_a_late_progress_message(sim_debugger, monk
         assert not d.progress.visible
 
 
-def test_reset_clears_what_is_shown(image_debugger) -> None:  # noqa: ANN001
+def test_reset_clears_what_is_shown(image_debugger) -> None:
     d = image_debugger
     for _ in range(3):
         d.submit("step")
@@ -225,7 +228,7 @@ def test_reset_clears_what_is_shown(image_debugger) -> None:  # noqa: ANN001
     assert "reset, press Step or Play" in d.status.content
 
 
-def test_ab_run_steps_both_engines_and_reports_the_difference(sim_debugger) -> None:  # noqa: ANN001
+def test_ab_run_steps_both_engines_and_reports_the_difference(sim_debugger) -> None:
     d = sim_debugger
     for _ in range(3):
         d.submit("step")
@@ -243,7 +246,7 @@ def test_ab_run_steps_both_engines_and_reports_the_difference(sim_debugger) -> N
     assert d.engine_b is None and "/ab/trajectory" not in d.scene._handles
 
 
-def test_plots_follow_the_shown_keyframe(sim_debugger) -> None:  # noqa: ANN001
+def test_plots_follow_the_shown_keyframe(sim_debugger) -> None:
     d = sim_debugger
     for _ in range(6):
         d.submit("step")
@@ -261,7 +264,7 @@ def test_plots_follow_the_shown_keyframe(sim_debugger) -> None:  # noqa: ANN001
     assert older.shape == newest.shape and np.any(older != newest)  # the marker moved
 
 
-def test_a_progress_message_that_fires_after_the_final_status_is_dropped(sim_debugger) -> None:  # noqa: ANN001
+def test_a_progress_message_that_fires_after_the_final_status_is_dropped(sim_debugger) -> None:
     """The race behind a stale status: the progress timer's callback runs after the work
     wrote its final status but before the worker went idle."""
     d = sim_debugger
@@ -275,7 +278,7 @@ def test_a_progress_message_that_fires_after_the_final_status_is_dropped(sim_deb
     d._idle()
 
 
-def test_playing_shows_the_rate_achieved(sim_debugger) -> None:  # noqa: ANN001
+def test_playing_shows_the_rate_achieved(sim_debugger) -> None:
     import time as _time
 
     d = sim_debugger
@@ -313,7 +316,7 @@ def test_the_segmenter_can_be_switched_in_the_debugger() -> None:
         d.stop()
 
 
-def test_ab_run_is_refused_for_an_engine_without_checkpoints(image_debugger) -> None:  # noqa: ANN001
+def test_ab_run_is_refused_for_an_engine_without_checkpoints(image_debugger) -> None:
     d = image_debugger
     d.submit("step")
     d.submit("ab", "P-w")

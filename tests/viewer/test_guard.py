@@ -15,7 +15,7 @@ from viewer.access import AccessSettings
 from viewer.guard import GuardNotInstalledError, start_server
 
 
-def _wait(predicate, timeout: float = 10.0) -> bool:  # noqa: ANN001
+def _wait(predicate, timeout: float = 10.0) -> bool:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline and not predicate():
         time.sleep(0.02)
@@ -49,7 +49,7 @@ def test_a_failing_check_refuses_the_frame_and_keeps_the_connection(monkeypatch:
             check = guard.inbound.check
             calls = []
 
-            def broken_once(client_id: int, frame: bytes | str):  # noqa: ANN202
+            def broken_once(client_id: int, frame: bytes | str):
                 calls.append(1)
                 if len(calls) == 1:
                     raise KeyError("a bug in a check")

@@ -16,11 +16,11 @@ def steps() -> list:
     return [engine.step() for _ in range(4)]
 
 
-def _as(snapshot, variant: str):  # noqa: ANN001, ANN202
+def _as(snapshot, variant: str):
     return dataclasses.replace(snapshot, report=dataclasses.replace(snapshot.report, variant=variant))
 
 
-def test_every_variant_of_a_keyframe_is_kept_and_the_stepped_one_first(steps) -> None:  # noqa: ANN001
+def test_every_variant_of_a_keyframe_is_kept_and_the_stepped_one_first(steps) -> None:
     h = SnapshotHistory(10)
     for s in steps:
         h.add_step(s)
@@ -38,7 +38,7 @@ def test_every_variant_of_a_keyframe_is_kept_and_the_stepped_one_first(steps) ->
     assert h.series("P-wo")[-1].variant == "P-wo"
 
 
-def test_capacity_drops_the_oldest_keyframe_with_its_variants(steps) -> None:  # noqa: ANN001
+def test_capacity_drops_the_oldest_keyframe_with_its_variants(steps) -> None:
     h = SnapshotHistory(2)
     h.add_step(steps[0])
     h.add_variant(_as(steps[0], "P-w"))

@@ -27,7 +27,6 @@ from viewer.app import Debugger, ViewerSettings
 EVIL = "http://evil.example.com"
 
 
-
 def _start(engine: object | None = None, *, access: AccessSettings = AccessSettings()) -> Debugger:
     engine = engine if engine is not None else SimEngine(SimSettings(window=4, max_iterations=2))
     d = Debugger(engine, port=free_port(), settings=ViewerSettings(compare=False, plots=False), access=access)  # type: ignore[arg-type]
@@ -169,8 +168,13 @@ def test_parts_of_an_unfinished_upload_are_not_kept(debugger: Debugger) -> None:
     with RawClient(d.port) as client:
         before = _rss_mb()
         client.send(
-            "FileTransferStartUpload", source_component_uuid=client.uuid("Step"), transfer_uuid="big", filename="x.bin",
-            mime_type="application/octet-stream", part_count=300, size_bytes=300 * len(part),
+            "FileTransferStartUpload",
+            source_component_uuid=client.uuid("Step"),
+            transfer_uuid="big",
+            filename="x.bin",
+            mime_type="application/octet-stream",
+            part_count=300,
+            size_bytes=300 * len(part),
         )
         for i in range(100):
             client.send("FileTransferPart", source_component_uuid=client.uuid("Step"), transfer_uuid="big", part_index=i, content=part)
@@ -223,8 +227,14 @@ def test_a_bad_value_is_refused_with_a_message_and_the_engine_keeps_stepping(deb
     d = debugger
     label, value = BAD_VALUES[case]
     handles = {
-        "Rate (Hz)": d.rate, "Play": d.play, "Variant": d.variant, "B variant": d.ab_variant, "Keyframe": d.slider,
-        "Point size": d.point_scale, "Shown": d.keyframe_label, "Reset": d.reset_button,
+        "Rate (Hz)": d.rate,
+        "Play": d.play,
+        "Variant": d.variant,
+        "B variant": d.ab_variant,
+        "Keyframe": d.slider,
+        "Point size": d.point_scale,
+        "Shown": d.keyframe_label,
+        "Reset": d.reset_button,
     }
     before = handles[label].value
     with RawClient(d.port) as client:
@@ -301,9 +311,14 @@ def test_a_burst_of_steps_is_one_pending_step_and_reset_acts_at_once() -> None:
 def _random_value(rng: random.Random, depth: int = 0) -> Any:
     kind = rng.randrange(11 if depth < 2 else 8)
     return [
-        lambda: None, lambda: rng.random() < 0.5, lambda: rng.randint(-(2**40), 2**40), lambda: rng.uniform(-1e6, 1e6),
-        lambda: rng.choice([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e308]), lambda: "".join(chr(rng.randrange(0x20, 0x2FFF)) for _ in range(rng.randrange(12))),
-        lambda: rng.randbytes(rng.randrange(40)), lambda: rng.choice(["value", "PL-w", "off", "", "\x00"]),
+        lambda: None,
+        lambda: rng.random() < 0.5,
+        lambda: rng.randint(-(2**40), 2**40),
+        lambda: rng.uniform(-1e6, 1e6),
+        lambda: rng.choice([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e308]),
+        lambda: "".join(chr(rng.randrange(0x20, 0x2FFF)) for _ in range(rng.randrange(12))),
+        lambda: rng.randbytes(rng.randrange(40)),
+        lambda: rng.choice(["value", "PL-w", "off", "", "\x00"]),
         lambda: [_random_value(rng, depth + 1) for _ in range(rng.randrange(5))],
         lambda: {rng.choice(["value", "uuid", "updates", "removed", "sync_cb", "x"]): _random_value(rng, depth + 1) for _ in range(rng.randrange(4))},
         lambda: [rng.uniform(-5, 5) for _ in range(rng.choice([2, 3, 4]))],
@@ -311,10 +326,24 @@ def _random_value(rng: random.Random, depth: int = 0) -> Any:
 
 
 CLIENT_TYPES = [
-    "GuiUpdateMessage", "ViewerCameraMessage", "CommandTriggerMessage", "ShareUrlRequest", "ShareUrlDisconnect",
-    "FileTransferStartUpload", "FileTransferPart", "GuiButtonHoldMessage", "GuiFormSubmitMessage", "GuiFormDirtyMessage",
-    "SceneNodeClickMessage", "ScenePointerMessage", "TransformControlsUpdateMessage", "GetRenderResponseMessage",
-    "LocalStorageGetItemResponseMessage", "ThemeConfigurationMessage", "ResetSceneMessage", "RemoveSceneNodeMessage",
+    "GuiUpdateMessage",
+    "ViewerCameraMessage",
+    "CommandTriggerMessage",
+    "ShareUrlRequest",
+    "ShareUrlDisconnect",
+    "FileTransferStartUpload",
+    "FileTransferPart",
+    "GuiButtonHoldMessage",
+    "GuiFormSubmitMessage",
+    "GuiFormDirtyMessage",
+    "SceneNodeClickMessage",
+    "ScenePointerMessage",
+    "TransformControlsUpdateMessage",
+    "GetRenderResponseMessage",
+    "LocalStorageGetItemResponseMessage",
+    "ThemeConfigurationMessage",
+    "ResetSceneMessage",
+    "RemoveSceneNodeMessage",
 ]
 
 
@@ -336,10 +365,15 @@ def random_messages(rng: random.Random, uuids: list[str], count: int) -> Iterato
             yield name or "empty", msgspec.msgpack.encode({"type": name, **fields})
         elif roll < 0.8:
             plausible = rng.choice([True, False, 0, 1, 2, 0.5, 5.0, 30.0, 2.0, "PL-r", "P-w", "off", "geometric", "learned"])
-            updates = rng.choice([
-                {"value": plausible}, {"value": plausible}, {"value": _random_value(rng)}, {"value": plausible, "visible": False},
-                {rng.choice(["update_cb", "removed", "is_button", "sync_cb", "disabled"]): _random_value(rng)},
-            ])
+            updates = rng.choice(
+                [
+                    {"value": plausible},
+                    {"value": plausible},
+                    {"value": _random_value(rng)},
+                    {"value": plausible, "visible": False},
+                    {rng.choice(["update_cb", "removed", "is_button", "sync_cb", "disabled"]): _random_value(rng)},
+                ]
+            )
             yield "GuiUpdateMessage", msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": rng.choice(uuids + ["nope"]), "updates": updates})
         else:
             camera = {k: (rng.choice([_random_value(rng), v]) if rng.random() < 0.3 else v) for k, v in CAMERA.items()}

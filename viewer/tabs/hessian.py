@@ -44,7 +44,7 @@ class HessianTab:
         self.compare_image.visible = bool(self.compare_box.value)
         if not self.compare_box.value or not has_keyframes:
             return
-        structures = engine.compare_hessians(engine.variant.family())  # type: ignore[attr-defined]
+        structures = engine.compare_hessians(engine.variant.family())
         if structures:
             self.compare_image.image = images.compare_image(structures)
 

@@ -50,12 +50,18 @@ def segment_keyframe(segmenter: PlaneSegmenter, frame: int, left: np.ndarray, ri
     oracle of rendered scenes (`segment_frame`)."""
     by_frame = getattr(segmenter, "segment_frame", None)
     if by_frame is not None:
-        return by_frame(frame)  # type: ignore[no-any-return]
+        return by_frame(frame)
     return segmenter.segment(left, right, camera)
 
 
 def detect_planes(
-    the_map: Map, obs: KeyframeObservations, masks: PlaneMasks, new_points: np.ndarray, new_lines: np.ndarray, rng: np.random.Generator, *,
+    the_map: Map,
+    obs: KeyframeObservations,
+    masks: PlaneMasks,
+    new_points: np.ndarray,
+    new_lines: np.ndarray,
+    rng: np.random.Generator,
+    *,
     settings: coplanar.CoplanarSettings,
 ) -> PlaneResult:
     """Co-planar detection on the keyframe (paper §III-A), features labelled by the
@@ -75,8 +81,17 @@ def detect_planes(
     lab_e = labels_at(labels, seg[:, 2:] - 3.0 * direction)
     l_lab = np.where(lab_s == lab_e, lab_s, -1)
     det = coplanar.detect_keyframe_planes(
-        point_ids=p_ids, point_label=p_lab, p_world=P.p_world[p_ids], line_ids=l_ids, line_label=l_lab, segments_world=the_map.segments_world(l_ids),
-        point_plane=P.plane[:], line_plane=Lm.plane[:], planes=the_map.planes, rng=rng, settings=settings,
+        point_ids=p_ids,
+        point_label=p_lab,
+        p_world=P.p_world[p_ids],
+        line_ids=l_ids,
+        line_label=l_lab,
+        segments_world=the_map.segments_world(l_ids),
+        point_plane=P.plane[:],
+        line_plane=Lm.plane[:],
+        planes=the_map.planes,
+        rng=rng,
+        settings=settings,
     )
     pts = new_points[P.plane[new_points] < 0]
     lns = new_lines[Lm.plane[new_lines] < 0]
@@ -90,7 +105,9 @@ def detect_planes(
         if accepted and 0 <= q < masks.count:
             instance_plane[q] = plane
     return PlaneResult(
-        Detection(det.instance, det.candidates, det.inliers, det.accepted, det.plane), FeatureStates(p_ids, det.point_state, l_ids, det.line_state), instance_plane,
+        Detection(det.instance, det.candidates, det.inliers, det.accepted, det.plane),
+        FeatureStates(p_ids, det.point_state, l_ids, det.line_state),
+        instance_plane,
     )
 
 

@@ -25,17 +25,29 @@ from backend.pipeline.snapshot import (
 
 
 def build_snapshot(
-    the_map: Map, k: int, w0: int, detection: Detection, det_state: tuple, report: OptimizationReport, hessian: HessianStructure | None, *,
-    source: str, image: KeyframeImage | None, tracking: Tracking | None, message: str,
+    the_map: Map,
+    k: int,
+    w0: int,
+    detection: Detection,
+    det_state: tuple,
+    report: OptimizationReport,
+    hessian: HessianStructure | None,
+    *,
+    source: str,
+    image: KeyframeImage | None,
+    tracking: Tracking | None,
+    message: str,
 ) -> Snapshot:
     """Keyframe k's snapshot; the window is [w0, k] (its poses are copied, the older ones
     shared with earlier snapshots); `det_state`: the features' detection states (point
     ids, states, line ids, states)."""
     n = k + 1
-    estimate = Trajectory((
-        (the_map.keyframe_stamp_ns.prefix(w0), the_map.R_world_keyframe.prefix(w0), the_map.t_world_keyframe.prefix(w0)),
-        (frozen(the_map.keyframe_stamp_ns[w0:n].copy()), frozen(the_map.R_world_keyframe[w0:n].copy()), frozen(the_map.t_world_keyframe[w0:n].copy())),
-    ))
+    estimate = Trajectory(
+        (
+            (the_map.keyframe_stamp_ns.prefix(w0), the_map.R_world_keyframe.prefix(w0), the_map.t_world_keyframe.prefix(w0)),
+            (frozen(the_map.keyframe_stamp_ns[w0:n].copy()), frozen(the_map.R_world_keyframe[w0:n].copy()), frozen(the_map.t_world_keyframe[w0:n].copy())),
+        )
+    )
     gt = Trajectory.of(the_map.keyframe_stamp_ns.prefix(n), the_map.R_world_keyframe_true.prefix(n), the_map.t_world_keyframe_true.prefix(n))
     P, Lm = the_map.points, the_map.lines
     p_ids = np.flatnonzero(P.ok[:])
@@ -51,16 +63,38 @@ def build_snapshot(
         n_p, n_l = int(np.sum((P.plane[:] == q) & P.ok[:])), int(np.sum((Lm.plane[:] == q) & Lm.ok[:]))
         if n_p + n_l == 0:
             continue
-        planes.append(PlaneLandmark(
-            id=q, n=frozen(np.array(the_map.planes.n[q])), d=float(the_map.planes.d[q]), hull_world=frozen(the_map.hull(q)), n_points=n_p, n_lines=n_l,
-            last_consensus=the_map.planes.consensus[q][0], last_candidates=the_map.planes.consensus[q][1],
-        ))
+        planes.append(
+            PlaneLandmark(
+                id=q,
+                n=frozen(np.array(the_map.planes.n[q])),
+                d=float(the_map.planes.d[q]),
+                hull_world=frozen(the_map.hull(q)),
+                n_points=n_p,
+                n_lines=n_l,
+                last_consensus=the_map.planes.consensus[q][0],
+                last_candidates=the_map.planes.consensus[q][1],
+            )
+        )
     valid = np.isfinite(gt.t_world_camera[:, 0])
     t_est, t_gt = estimate.t_world_camera[valid], gt.t_world_camera[valid]
     rmse = 100.0 * translational_rmse(t_est, t_gt) if len(t_gt) else float("nan")
     ate = 100.0 * ate_rmse(t_est, t_gt, align="se3") if len(t_gt) >= 3 else rmse
     return Snapshot(
-        keyframe=k, timestamp_ns=int(the_map.keyframe_stamp_ns[k]), source=source, camera=the_map.camera, estimate=estimate, ground_truth=gt if valid.any() else None,
-        window=frozen(np.arange(w0, n)), points=points, lines=lines, planes=tuple(planes), detection=detection,
-        report=report, hessian=hessian, metrics=Metrics(rmse_cm=rmse, ate_cm=ate), message=message, image=image, tracking=tracking,
+        keyframe=k,
+        timestamp_ns=int(the_map.keyframe_stamp_ns[k]),
+        source=source,
+        camera=the_map.camera,
+        estimate=estimate,
+        ground_truth=gt if valid.any() else None,
+        window=frozen(np.arange(w0, n)),
+        points=points,
+        lines=lines,
+        planes=tuple(planes),
+        detection=detection,
+        report=report,
+        hessian=hessian,
+        metrics=Metrics(rmse_cm=rmse, ate_cm=ate),
+        message=message,
+        image=image,
+        tracking=tracking,
     )

@@ -73,7 +73,15 @@ class SolveSettings:
 
 
 def solve_window(
-    the_map: Map, k: int, variant: Variant, *, w0: int, oldest: int, extension: WindowExtension, settings: SolveSettings, timing: dict[str, float],
+    the_map: Map,
+    k: int,
+    variant: Variant,
+    *,
+    w0: int,
+    oldest: int,
+    extension: WindowExtension,
+    settings: SolveSettings,
+    timing: dict[str, float],
 ) -> tuple[Window, OptimizationReport, HessianStructure | None]:
     """Solve keyframe k's window [w0, k] (observations from `oldest` on) with `variant` and
     write the solution into the map. Times (ms) go into `timing`: setup, optimization
@@ -82,12 +90,19 @@ def solve_window(
     s = settings
     t0 = time.perf_counter()
     win = assemble_window(
-        the_map, k, w0=w0, oldest=oldest, settings=s.window, fix_first=extension.fix_first_pose(),
-        keep_landmarks=extension.keep_landmarks(w0), extra_planes=extension.extra_planes(),
+        the_map,
+        k,
+        w0=w0,
+        oldest=oldest,
+        settings=s.window,
+        fix_first=extension.fix_first_pose(),
+        keep_landmarks=extension.keep_landmarks(w0),
+        extra_planes=extension.extra_planes(),
     )
     win = dataclasses.replace(win, data=extension.problem_data(win))
     problem = build_problem(win.data, variant, robust_px=s.cauchy)
     timing["setup"] = 1e3 * (time.perf_counter() - t0)
+    assert win.data.fixed_poses is not None  # assemble_window always sets it
     free = ~win.data.fixed_poses
     if not np.any(free) or problem.layout.n_params == 0:  # a segment's first keyframe: nothing to solve
         timing["optimization"] = timing["linearize"] = timing["solve"] = 0.0
@@ -107,8 +122,18 @@ def solve_window(
         hessian = hessian_structure(problem, state)
         timing["hessian"] = 1e3 * (time.perf_counter() - t0)
     report = OptimizationReport(
-        variant=variant, method=s.method, iterations=rep.iterations, initial_cost=rep.initial_cost, final_cost=rep.final_cost,
-        converged=rep.converged, items=rep.items, params=rep.params, window=int(free.sum()), fixed_poses=int((~free).sum()), timing_ms=timing,
-        termination=rep.termination, dropped_landmarks=rep.dropped_landmarks,
+        variant=variant,
+        method=s.method,
+        iterations=rep.iterations,
+        initial_cost=rep.initial_cost,
+        final_cost=rep.final_cost,
+        converged=rep.converged,
+        items=rep.items,
+        params=rep.params,
+        window=int(free.sum()),
+        fixed_poses=int((~free).sum()),
+        timing_ms=timing,
+        termination=rep.termination,
+        dropped_landmarks=rep.dropped_landmarks,
     )
     return win, report, hessian

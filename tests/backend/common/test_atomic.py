@@ -85,7 +85,7 @@ def test_ctrl_c_while_the_files_move_in_is_held_until_all_have(tmp_path: pathlib
     original = os.replace
     calls = []
 
-    def replace_and_interrupt(src, dst):  # noqa: ANN001, ANN202
+    def replace_and_interrupt(src, dst):
         calls.append(dst)
         if len(calls) == 1:
             os.kill(os.getpid(), signal.SIGINT)  # arrives between two renames

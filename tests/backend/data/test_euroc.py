@@ -19,23 +19,27 @@ from backend.data.errors import DatasetError
 from backend.data.euroc import EurocDataset
 
 T0_NS = 1403715273262142976  # EuRoC-like epoch timestamps
-FRAME_NS = 50_000_000        # 20 Hz
-IMU_NS = 5_000_000           # 200 Hz
+FRAME_NS = 50_000_000  # 20 Hz
+IMU_NS = 5_000_000  # 200 Hz
 WIDTH, HEIGHT = 32, 24
 
 # EuRoC V1_01's extrinsics (body = IMU frame).
-T_BODY_CAM0 = np.array([
-    [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975],
-    [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768],
-    [-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949],
-    [0.0, 0.0, 0.0, 1.0],
-])
-T_BODY_CAM1 = np.array([
-    [0.0125552670891, -0.999755099723, 0.0182237714554, -0.0198435579556],
-    [0.999598781151, 0.0130119051815, 0.0251588363115, 0.0453689425024],
-    [-0.0253898008918, 0.0179005838253, 0.999517347078, 0.00786212447038],
-    [0.0, 0.0, 0.0, 1.0],
-])
+T_BODY_CAM0 = np.array(
+    [
+        [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975],
+        [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768],
+        [-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+)
+T_BODY_CAM1 = np.array(
+    [
+        [0.0125552670891, -0.999755099723, 0.0182237714554, -0.0198435579556],
+        [0.999598781151, 0.0130119051815, 0.0251588363115, 0.0453689425024],
+        [-0.0253898008918, 0.0179005838253, 0.999517347078, 0.00786212447038],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+)
 INTRINSICS = {"cam0": [40.5, 40.25, 15.75, 12.25], "cam1": [40.0, 40.5, 16.25, 11.75]}
 DISTORTION = {"cam0": [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05], "cam1": [-0.28368365, 0.07451284, -0.00010473, -3.55590700e-05]}
 
@@ -49,7 +53,7 @@ GT_START_NS = T0_NS + 22_500_000
 GT_COUNT = 110
 P0_WORLD = np.array([1.0, -2.0, 0.5])
 V_WORLD = np.array([0.4, 0.3, -0.1])  # m/s
-YAW_RATE = 0.8                        # rad/s about world z
+YAW_RATE = 0.8  # rad/s about world z
 R_TILT = Rotation.from_rotvec([0.1, -0.2, 0.05])
 
 
@@ -73,9 +77,7 @@ def _camera_yaml(name: str, T: np.ndarray) -> str:
         "# General sensor definitions.\n"
         "sensor_type: camera\n"
         f"comment: VI-Sensor {name} (MT9M034)\n\n"
-        "# Sensor extrinsics wrt. the body-frame.\n"
-        + _matrix(T)
-        + "\n# Camera specific definitions.\n"
+        "# Sensor extrinsics wrt. the body-frame.\n" + _matrix(T) + "\n# Camera specific definitions.\n"
         "rate_hz: 20\n"
         f"resolution: [{WIDTH}, {HEIGHT}]\n"
         "camera_model: pinhole\n"
@@ -90,9 +92,7 @@ IMU_YAML = (
     "#Default imu sensor yaml file\n"
     "sensor_type: imu\n"
     "comment: VI-Sensor IMU (ADIS16448)\n\n"
-    "# Sensor extrinsics wrt. the body-frame.\n"
-    + _matrix(np.eye(4))
-    + "rate_hz: 200\n\n"
+    "# Sensor extrinsics wrt. the body-frame.\n" + _matrix(np.eye(4)) + "rate_hz: 200\n\n"
     "# inertial sensor noise model parameters (static)\n"
     'gyroscope_noise_density: 1.6968e-04     # [ rad / s / sqrt(Hz) ]   ( gyro "white noise" )\n'
     "gyroscope_random_walk: 1.9393e-05       # [ rad / s^2 / sqrt(Hz) ] ( gyro bias diffusion )\n"
@@ -105,8 +105,7 @@ GT_YAML = (
     "# tracking prima to the body frame.\n"
     "sensor_type: visual-inertial\n"
     "comment: The nonlinear least-squares batch solution over the Vicon pose and IMU measurements "
-    "including time offset estimation. The orientation is only coarsly aligned with gravity.\n"
-    + _matrix(np.eye(4))
+    "including time offset estimation. The orientation is only coarsly aligned with gravity.\n" + _matrix(np.eye(4))
 )
 IMU_HEADER = "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]"
 GT_HEADER = (
@@ -136,9 +135,7 @@ def write_euroc(root: pathlib.Path, *, ground_truth: bool = True) -> pathlib.Pat
         (mav0 / name / "data.csv").write_bytes(("\r\n" if name == "cam0" else "\n").join(lines).encode() + b"\n")
     (mav0 / "imu0").mkdir()
     (mav0 / "imu0" / "sensor.yaml").write_text(IMU_YAML)
-    imu_lines = [IMU_HEADER] + [
-        f"{T0_NS + i * IMU_NS},{0.001 * i!r},{-0.002 * i!r},0.03,9.81,{0.01 * i!r},-0.2" for i in range(IMU_COUNT)
-    ]
+    imu_lines = [IMU_HEADER] + [f"{T0_NS + i * IMU_NS},{0.001 * i!r},{-0.002 * i!r},0.03,9.81,{0.01 * i!r},-0.2" for i in range(IMU_COUNT)]
     (mav0 / "imu0" / "data.csv").write_text("\n".join(imu_lines) + "\n")
     if ground_truth:
         gt = mav0 / "state_groundtruth_estimate0"
@@ -265,12 +262,14 @@ def test_yaml_without_directive_is_read(tmp_path: pathlib.Path) -> None:
 
 # --- bad input: (mutation of a good folder, path the message must name, line or None, words)
 
+
 def _edit(relative: str, old: str, new: str, count: int = 1) -> Callable[[pathlib.Path], None]:
     def edit(root: pathlib.Path) -> None:
         path = root / relative
         text = path.read_text()
         assert old in text, old
         path.write_text(text.replace(old, new, count))
+
     return edit
 
 
@@ -280,6 +279,7 @@ def _edit_line(relative: str, line: int, edit: Callable[[str], str]) -> Callable
         lines = path.read_text().split("\n")
         lines[line - 1] = edit(lines[line - 1])
         path.write_text("\n".join(lines))
+
     return apply
 
 
@@ -290,6 +290,7 @@ def _remove(relative: str) -> Callable[[pathlib.Path], None]:
             shutil.rmtree(path)
         else:
             path.unlink()
+
     return remove
 
 
@@ -302,6 +303,7 @@ def _set_field(column: int, value: str) -> Callable[[str], str]:
         fields = line.split(",")
         fields[column] = value
         return ",".join(fields)
+
     return edit
 
 
@@ -329,7 +331,12 @@ BAD_INPUTS = {
     "timestamps going back": (_edit_line("mav0/imu0/data.csv", 6, _set_field(0, str(T0_NS))), "mav0/imu0/data.csv", 6, "not after"),
     "nan in imu": (_edit_line("mav0/imu0/data.csv", 17, _set_field(2, "nan")), "mav0/imu0/data.csv", 17, "NaN in column w_RS_S_y"),
     "inf in imu": (_edit_line("mav0/imu0/data.csv", 11, _set_field(4, "inf")), "mav0/imu0/data.csv", 11, "infinite value in column a_RS_S_x"),
-    "zero quaternion": (_edit_line("mav0/state_groundtruth_estimate0/data.csv", 3, lambda s: ",".join(s.split(",")[:4] + ["0", "0", "0", "0"] + s.split(",")[8:])), "mav0/state_groundtruth_estimate0/data.csv", 3, "quaternion"),
+    "zero quaternion": (
+        _edit_line("mav0/state_groundtruth_estimate0/data.csv", 3, lambda s: ",".join(s.split(",")[:4] + ["0", "0", "0", "0"] + s.split(",")[8:])),
+        "mav0/state_groundtruth_estimate0/data.csv",
+        3,
+        "quaternion",
+    ),
     "image listed but absent": (_remove(_first_image("cam1")), "mav0/cam1/data.csv", 2, _first_image("cam1")),
     "image folder absent": (_remove("mav0/cam0/data"), "mav0/cam0/data", None, "missing folder"),
     "yaml without intrinsics": (_edit("mav0/cam0/sensor.yaml", "intrinsics:", "# intrinsics:"), "mav0/cam0/sensor.yaml", None, "missing key 'intrinsics'"),
@@ -472,6 +479,7 @@ def _append_rows(relative: str, stamps: list[int], suffix: str = ".png") -> Call
     def append(root: pathlib.Path) -> None:
         path = root / relative
         path.write_text(path.read_text() + "".join(f"{t},{t}{suffix}\n" for t in stamps))
+
     return append
 
 

@@ -16,11 +16,11 @@ DT = 0.005
 
 
 @pytest.fixture(scope="module")
-def trajectory():  # noqa: ANN201
+def trajectory():
     return random_trajectory(np.random.default_rng(3))
 
 
-def _preintegrate(imu, trajectory, kind: str) -> tuple[float, float, float]:  # noqa: ANN001
+def _preintegrate(imu, trajectory, kind: str) -> tuple[float, float, float]:
     """Position (m), velocity (m/s) and rotation (rad) error after predicting over the samples."""
     params = gtsam.PreintegrationParams.MakeSharedU(-GRAVITY_WORLD[2])
     params.setAccelerometerCovariance(1e-6 * np.eye(3))
@@ -36,7 +36,7 @@ def _preintegrate(imu, trajectory, kind: str) -> tuple[float, float, float]:  # 
     return float(np.linalg.norm(end.position() - p[1])), float(np.linalg.norm(end.velocity() - v[1])), float(rot)
 
 
-def test_noise_free_samples_reproduce_the_trajectory_after_10_s(trajectory) -> None:  # noqa: ANN001
+def test_noise_free_samples_reproduce_the_trajectory_after_10_s(trajectory) -> None:
     imu = imu_samples(trajectory, start_ns=0, end_ns=int(DURATION_S * 1e9))
     assert len(imu) == 2000
     # The motion is not trivial: it moves and turns.
@@ -51,7 +51,7 @@ def test_noise_free_samples_reproduce_the_trajectory_after_10_s(trajectory) -> N
     assert dp < 5e-3 and dv < 5e-3 and dr < np.deg2rad(0.02), (dp, dv, dr)
 
 
-def test_naive_sampling_would_drift(trajectory) -> None:  # noqa: ANN001
+def test_naive_sampling_would_drift(trajectory) -> None:
     """Sampling the continuous rates at t_k (no discretization care) misses by far more:
     the test above is not passing trivially."""
     imu = imu_samples(trajectory, start_ns=0, end_ns=int(DURATION_S * 1e9))
@@ -63,7 +63,7 @@ def test_naive_sampling_would_drift(trajectory) -> None:  # noqa: ANN001
     assert dp > 1e-3, dp  # measured 4.5 mm, against 0.5 µm above
 
 
-def test_derivatives_match_finite_differences(trajectory) -> None:  # noqa: ANN001
+def test_derivatives_match_finite_differences(trajectory) -> None:
     t = np.linspace(0.0, DURATION_S, 37)
     h = 1e-5
     np.testing.assert_allclose(trajectory.velocity(t), (trajectory.position(t + h) - trajectory.position(t - h)) / (2 * h), atol=1e-8)
@@ -72,7 +72,7 @@ def test_derivatives_match_finite_differences(trajectory) -> None:  # noqa: ANN0
     np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
 
 
-def test_at_rest_the_accelerometer_reads_gravity_up(trajectory) -> None:  # noqa: ANN001
+def test_at_rest_the_accelerometer_reads_gravity_up(trajectory) -> None:
     still = dataclasses.replace(trajectory, amplitude=np.zeros_like(trajectory.amplitude))
     imu = imu_samples(still, start_ns=0, end_ns=int(1e9))
     R0 = still.rotation(np.zeros(1))[0]
@@ -80,7 +80,7 @@ def test_at_rest_the_accelerometer_reads_gravity_up(trajectory) -> None:  # noqa
     np.testing.assert_allclose(imu.accel, np.broadcast_to(R0.T @ np.array([0.0, 0.0, 9.81]), imu.accel.shape), atol=1e-9)
 
 
-def test_noise_levels_follow_the_densities(trajectory) -> None:  # noqa: ANN001
+def test_noise_levels_follow_the_densities(trajectory) -> None:
     imu = imu_samples(trajectory, start_ns=0, end_ns=int(50e9))
     white = ImuNoise(gyroscope_random_walk=0.0, accelerometer_random_walk=0.0)
     noisy, b_g, b_a = add_imu_noise(imu, np.random.default_rng(0), noise=white)

@@ -63,8 +63,7 @@ def test_orb_matches_lie_on_the_same_row(rectification: StereoRectification, ind
     rectified = row_errors(*rectification.rectify(left, right))
     near = rectified[rectified < 5.0]
     print(
-        f"pair {index}: median |dv| raw {np.median(raw):.3f} px ({raw.size} matches), "
-        f"rectified {np.median(rectified):.3f} px ({rectified.size} matches; mean of those under 5 px {near.mean():.3f} px)"
+        f"pair {index}: median |dv| raw {np.median(raw):.3f} px ({raw.size} matches), rectified {np.median(rectified):.3f} px ({rectified.size} matches; mean of those under 5 px {near.mean():.3f} px)"
     )
     assert rectified.size >= 50
     assert np.median(rectified) < MAX_MEDIAN_ROW_ERROR_PX

@@ -87,9 +87,7 @@ def test_non_planar_pixels_lie_on_the_sphere_and_cylinder(room: Scene) -> None:
     t_world_camera = np.array([0.0, 0.0, 1.4])
     for target, check in (
         (sphere.centre, lambda p: np.abs(np.linalg.norm(p - sphere.centre, axis=-1) - sphere.radius)),
-        (np.array([*cylinder.centre_xy, 0.6]), lambda p: np.minimum(
-            np.abs(np.linalg.norm(p[:, :2] - cylinder.centre_xy, axis=-1) - cylinder.radius),
-            np.abs(p[:, 2] - cylinder.z_range[1]))),
+        (np.array([*cylinder.centre_xy, 0.6]), lambda p: np.minimum(np.abs(np.linalg.norm(p[:, :2] - cylinder.centre_xy, axis=-1) - cylinder.radius), np.abs(p[:, 2] - cylinder.z_range[1]))),
     ):
         R_world_camera = render.look_at(t_world_camera, target)
         view = render.render_view(room, CAMERA, R_world_camera, t_world_camera)

@@ -41,12 +41,15 @@ def test_a_scene_file_is_rendered_on_demand_with_its_truth(tmp_path: pathlib.Pat
     np.testing.assert_array_equal(source.T_body_rect0, source.T_body_cam0)
 
 
-@pytest.mark.parametrize(("make", "words"), [
-    (lambda p: p / "missing", "no such folder"),
-    (lambda p: p, "no mav0 folder"),
-    (lambda p: (p / "broken.json").write_text("{") and p / "broken.json", "invalid JSON"),
-])
-def test_what_no_reader_recognizes_is_one_line_naming_it(tmp_path: pathlib.Path, make, words: str) -> None:  # noqa: ANN001
+@pytest.mark.parametrize(
+    ("make", "words"),
+    [
+        (lambda p: p / "missing", "no such folder"),
+        (lambda p: p, "no mav0 folder"),
+        (lambda p: (p / "broken.json").write_text("{") and p / "broken.json", "invalid JSON"),
+    ],
+)
+def test_what_no_reader_recognizes_is_one_line_naming_it(tmp_path: pathlib.Path, make, words: str) -> None:
     path = make(tmp_path)
     with pytest.raises(DatasetError) as error:
         open_dataset(path)

@@ -8,9 +8,9 @@ import pytest
 
 pytest.importorskip("open3d")
 
-from backend.data.scenes import builtin_scene  # noqa: E402
-from backend.data.synthetic import SequenceSettings, SyntheticSequence  # noqa: E402
-from backend.eval.dense import distance_to_planes, fuse_keyframes, map_bounds, stereo_depth  # noqa: E402
+from backend.data.scenes import builtin_scene
+from backend.data.synthetic import SequenceSettings, SyntheticSequence
+from backend.eval.dense import distance_to_planes, fuse_keyframes, map_bounds, stereo_depth
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ from backend.eval import montecarlo, sequences
 from backend.geometry import line as line_geo
 from backend.geometry.se3 import Poses
 from backend.optim.problem import ProblemData, State, build_problem
-from backend.optim.variant import VARIANTS
 from backend.optim.solver import optimize
+from backend.optim.variant import VARIANTS
 from tests.paper import PAPER_COUNTS_B as PAPER_COUNTS
 
 # Initial poses off by 0.2° and 2 cm per axis, exact image measurements.

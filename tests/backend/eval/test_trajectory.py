@@ -32,9 +32,7 @@ def _random_similarity(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray
     return rotation, translation, scale
 
 
-def _apply(
-    rotation: np.ndarray, translation: np.ndarray, scale: float, p: np.ndarray
-) -> np.ndarray:
+def _apply(rotation: np.ndarray, translation: np.ndarray, scale: float, p: np.ndarray) -> np.ndarray:
     return scale * p @ rotation.T + translation
 
 
@@ -343,8 +341,7 @@ def test_relative_pose_error_matches_evo_rpe(pairs_from: str) -> None:
         T[:, :3, :3], T[:, :3, 3] = R, t
         return PosePath3D(poses_se3=list(T))
 
-    ref = evo_metrics.RPE(evo_metrics.PoseRelation.translation_part, delta=1.0, delta_unit=evo_metrics.Unit.meters,
-                          all_pairs=False, pairs_from_reference=pairs_from == "ground_truth")
+    ref = evo_metrics.RPE(evo_metrics.PoseRelation.translation_part, delta=1.0, delta_unit=evo_metrics.Unit.meters, all_pairs=False, pairs_from_reference=pairs_from == "ground_truth")
     ref.process_data((path(R_gt, t_gt), path(R_est, t_est)))
     rpe = relative_pose_error(R_est, t_est, R_gt, t_gt, delta_m=1.0, pairs_from=pairs_from)
     assert rpe.pairs == len(ref.error) >= 3

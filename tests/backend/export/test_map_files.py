@@ -19,7 +19,7 @@ o3d = pytest.importorskip("open3d")
 
 
 @pytest.fixture(scope="module")
-def snapshot():  # noqa: ANN201
+def snapshot():
     """Eight keyframes of the Monte-Carlo sequence a: points, lines and planes."""
     from backend.pipeline.sim_engine import SimEngine, SimSettings
 
@@ -30,7 +30,7 @@ def snapshot():  # noqa: ANN201
     return s
 
 
-def test_each_file_opens_as_its_type_with_the_snapshots_counts(snapshot, tmp_path: pathlib.Path) -> None:  # noqa: ANN001
+def test_each_file_opens_as_its_type_with_the_snapshots_counts(snapshot, tmp_path: pathlib.Path) -> None:
     paths = write_map_files(snapshot, tmp_path)
     assert [p.name for p in paths] == list(MAP_FILES)
     cloud = o3d.io.read_point_cloud(str(tmp_path / "points.ply"))
@@ -53,7 +53,7 @@ def test_each_file_opens_as_its_type_with_the_snapshots_counts(snapshot, tmp_pat
     assert PlyData.read(str(tmp_path / "map.ply"))["vertex"].count == len(snapshot.points) + 2 * len(snapshot.lines) + sum(len(p.hull_world) for p in hulls)
 
 
-def test_the_zip_holds_the_five_files(snapshot) -> None:  # noqa: ANN001
+def test_the_zip_holds_the_five_files(snapshot) -> None:
     with zipfile.ZipFile(io.BytesIO(map_files_zip(snapshot))) as archive:
         assert sorted(archive.namelist()) == sorted(MAP_FILES)
 
@@ -61,7 +61,7 @@ def test_the_zip_holds_the_five_files(snapshot) -> None:  # noqa: ANN001
 def test_missing_libusb_is_one_line_that_says_what_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
     real_import = builtins.__import__
 
-    def no_open3d(name, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+    def no_open3d(name, *args, **kwargs):
         if name == "open3d":
             raise OSError("libusb-1.0.so.0: cannot open shared object file: No such file or directory")
         return real_import(name, *args, **kwargs)
@@ -74,7 +74,7 @@ def test_missing_libusb_is_one_line_that_says_what_to_install(monkeypatch: pytes
     assert "\n" not in message and "libusb-1.0-0" in message and "apt-get install" in message
 
 
-def test_a_map_without_lines_writes_an_empty_line_set(snapshot, tmp_path: pathlib.Path) -> None:  # noqa: ANN001
+def test_a_map_without_lines_writes_an_empty_line_set(snapshot, tmp_path: pathlib.Path) -> None:
     """P variants map no lines: lines.ply is there, empty, and open3d reads it as a line set."""
     import dataclasses
 
@@ -87,14 +87,14 @@ def test_a_map_without_lines_writes_an_empty_line_set(snapshot, tmp_path: pathli
     assert len(o3d.io.read_point_cloud(str(tmp_path / "points.ply")).points) == len(snapshot.points)
 
 
-def test_run_without_open3d_keeps_its_results_and_dense_says_why(monkeypatch: pytest.MonkeyPatch, tmp_path: pathlib.Path, capsys) -> None:  # noqa: ANN001
+def test_run_without_open3d_keeps_its_results_and_dense_says_why(monkeypatch: pytest.MonkeyPatch, tmp_path: pathlib.Path, capsys) -> None:
     """Without libusb (open3d cannot be imported) `run` still writes its results and the
     combined map, with a one-line warning; `--dense` refuses at once, one line, exit 2."""
     from app import cli
     from backend.common import optional
     from backend.export import map_files
 
-    def missing():  # noqa: ANN202
+    def missing():
         raise MissingLibraryError("open3d cannot be imported: the system library libusb-1.0 is missing (Debian: apt-get install libusb-1.0-0)")
 
     monkeypatch.setattr(map_files, "require_open3d", missing)

@@ -26,8 +26,7 @@ def snapshot() -> Snapshot:
     assert len(snap.points) > 0 and len(snap.lines) > 0
     assert sum(len(p.hull_world) >= 3 for p in snap.planes) >= 1
     assert np.any(snap.points.plane < 0) and np.any(snap.points.plane >= 0)
-    no_hull = PlaneLandmark(id=len(snap.planes), n=frozen(np.array([0.0, 0.0, 1.0])), d=1.0, hull_world=frozen(np.zeros((2, 3))),
-                            n_points=0, n_lines=0, last_consensus=1.0, last_candidates=10)
+    no_hull = PlaneLandmark(id=len(snap.planes), n=frozen(np.array([0.0, 0.0, 1.0])), d=1.0, hull_world=frozen(np.zeros((2, 3))), n_points=0, n_lines=0, last_consensus=1.0, last_candidates=10)
     return dataclasses.replace(snap, planes=(*snap.planes, no_hull))
 
 

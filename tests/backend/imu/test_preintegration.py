@@ -13,9 +13,9 @@ from backend.imu.preintegration import (
     bias_random_walk_error,
     imu_factor,
     imu_factor_error,
+    predict_state,
     preintegrate,
     preintegration_params,
-    predict_state,
 )
 
 NOISE = ImuNoise()
@@ -26,33 +26,33 @@ BIAS_TRUE = np.array([0.08, -0.05, 0.12, 0.004, -0.006, 0.003])  # accel m/s², 
 
 
 @pytest.fixture(scope="module")
-def trajectory():  # noqa: ANN201
+def trajectory():
     """Hand-held-like motion (turn rates up to ~0.2 rad/s): there the samples' own position
     discretization (trapezoid rule, `backend.data.motion`) stays under a micrometre per 0.5 s."""
     return random_trajectory(np.random.default_rng(7))
 
 
 @pytest.fixture(scope="module")
-def fast_trajectory():  # noqa: ANN201
+def fast_trajectory():
     """Faster motion (turn rates up to ~1.8 rad/s) for the Jacobians."""
     return random_trajectory(np.random.default_rng(7), base_frequency_hz=0.15)
 
 
 @pytest.fixture(scope="module")
-def imu(trajectory) -> ImuData:  # noqa: ANN001
+def imu(trajectory) -> ImuData:
     return imu_samples(trajectory, start_ns=0, end_ns=3_000_000_000)
 
 
-def _truth(trajectory, *stamps_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # noqa: ANN001
+def _truth(trajectory, *stamps_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     t = np.array(stamps_ns, dtype=float) * 1e-9
     return trajectory.rotation(t), trajectory.position(t), trajectory.velocity(t)
 
 
-def _unwhitened(pim, residual: np.ndarray) -> np.ndarray:  # noqa: ANN001
+def _unwhitened(pim, residual: np.ndarray) -> np.ndarray:
     return np.linalg.solve(imu_factor(pim).sqrt_information, residual)
 
 
-def _numeric_jacobian(f, x0: np.ndarray, *, step: float) -> np.ndarray:  # noqa: ANN001
+def _numeric_jacobian(f, x0: np.ndarray, *, step: float) -> np.ndarray:
     columns = []
     for k in range(x0.shape[0]):
         dx = np.zeros_like(x0)
@@ -61,7 +61,7 @@ def _numeric_jacobian(f, x0: np.ndarray, *, step: float) -> np.ndarray:  # noqa:
     return np.stack(columns, axis=1)
 
 
-def test_jacobians_match_central_differences_in_the_project_retraction(fast_trajectory) -> None:  # noqa: ANN001
+def test_jacobians_match_central_differences_in_the_project_retraction(fast_trajectory) -> None:
     """Away from the truth (non-zero residual) and at a bias other than the integration's:
     every block, pose columns in `(δθ, δt_world)` with `R Exp(δθ)`, `t + δt`."""
     rng = np.random.default_rng(0)
@@ -74,7 +74,7 @@ def test_jacobians_match_central_differences_in_the_project_retraction(fast_traj
     v_i, v_j = v[0] + rng.normal(0, 0.05, 3), v[1] + rng.normal(0, 0.05, 3)
     bias = rng.normal(0, 0.01, 6)
 
-    def residual(R_i=R_i, t_i=t_i, v_i=v_i, R_j=R_j, t_j=t_j, v_j=v_j, bias=bias) -> np.ndarray:  # noqa: ANN001
+    def residual(R_i=R_i, t_i=t_i, v_i=v_i, R_j=R_j, t_j=t_j, v_j=v_j, bias=bias) -> np.ndarray:
         return imu_factor_error(term, R_i, t_i, v_i, R_j, t_j, v_j, bias).residual
 
     result = imu_factor_error(term, R_i, t_i, v_i, R_j, t_j, v_j, bias)
@@ -96,7 +96,7 @@ def test_jacobians_match_central_differences_in_the_project_retraction(fast_traj
     assert np.max(np.abs(H_t_body - result.J_pose_i[:, 3:])) > 1e-3 * np.max(np.abs(H_t_body))
 
 
-def test_zero_residual_on_noise_free_samples(trajectory, imu) -> None:  # noqa: ANN001
+def test_zero_residual_on_noise_free_samples(trajectory, imu) -> None:
     R, p, v = _truth(trajectory, T0_NS, T1_NS)
     pim = preintegrate(imu, T0_NS, T1_NS, bias_accel=np.zeros(3), bias_gyro=np.zeros(3), params=PARAMS)
     assert pim.deltaTij() == pytest.approx(0.5, abs=1e-12)
@@ -108,7 +108,7 @@ def test_zero_residual_on_noise_free_samples(trajectory, imu) -> None:  # noqa: 
     assert np.linalg.norm(p_j - p[1]) < 1e-6 and np.linalg.norm(v_j - v[1]) < 1e-6
 
 
-def test_residual_blocks_are_prediction_minus_state_in_body_j(trajectory, imu) -> None:  # noqa: ANN001
+def test_residual_blocks_are_prediction_minus_state_in_body_j(trajectory, imu) -> None:
     """The documented chart, to first order: (Log(R_jᵀ R_pred), R_jᵀ (t_pred - t_j), R_jᵀ (v_pred - v_j))."""
     R, p, v = _truth(trajectory, T0_NS, T1_NS)
     pim = preintegrate(imu, T0_NS, T1_NS, bias_accel=np.zeros(3), bias_gyro=np.zeros(3), params=PARAMS)
@@ -121,7 +121,7 @@ def test_residual_blocks_are_prediction_minus_state_in_body_j(trajectory, imu) -
     np.testing.assert_allclose(e[6:], -R_j.T @ dv, atol=1e-5)
 
 
-def test_zero_residual_with_a_known_constant_bias(trajectory, imu) -> None:  # noqa: ANN001
+def test_zero_residual_with_a_known_constant_bias(trajectory, imu) -> None:
     biased = ImuData(imu.timestamp_ns, imu.gyro + BIAS_TRUE[3:], imu.accel + BIAS_TRUE[:3])
     R, p, v = _truth(trajectory, T0_NS, T1_NS)
     pim = preintegrate(biased, T0_NS, T1_NS, bias_accel=BIAS_TRUE[:3], bias_gyro=BIAS_TRUE[3:], params=PARAMS)
@@ -132,7 +132,7 @@ def test_zero_residual_with_a_known_constant_bias(trajectory, imu) -> None:  # n
     assert np.max(np.abs(_unwhitened(pim, wrong.residual))) > 1e-3
 
 
-def test_first_order_bias_correction_matches_reintegration(trajectory, imu) -> None:  # noqa: ANN001
+def test_first_order_bias_correction_matches_reintegration(trajectory, imu) -> None:
     """Evaluating a preintegration at a bias b̂ + δ equals re-integrating with b̂ + δ up to
     O(|δ|²): the gap shrinks fourfold when δ halves, and is tiny against the first-order
     effect of δ itself."""
@@ -156,7 +156,7 @@ def test_first_order_bias_correction_matches_reintegration(trajectory, imu) -> N
     assert np.max(np.abs(corrected)) < 1e-4
 
 
-def test_clipped_intervals_cover_exactly_the_requested_span(trajectory, imu) -> None:  # noqa: ANN001
+def test_clipped_intervals_cover_exactly_the_requested_span(trajectory, imu) -> None:
     t0, t1 = T0_NS + 1_234_567, T1_NS + 2_345_678  # off the 5 ms sample grid
     pim = preintegrate(imu, t0, t1, bias_accel=np.zeros(3), bias_gyro=np.zeros(3), params=PARAMS)
     assert pim.deltaTij() == pytest.approx((t1 - t0) * 1e-9, abs=1e-12)
@@ -165,7 +165,7 @@ def test_clipped_intervals_cover_exactly_the_requested_span(trajectory, imu) -> 
     assert np.max(np.abs(_unwhitened(pim, result.residual))) < 2e-6  # held readings inside a sample
 
 
-def test_the_data_s_last_sample_holds_until_t1(imu) -> None:  # noqa: ANN001
+def test_the_data_s_last_sample_holds_until_t1(imu) -> None:
     end = int(imu.timestamp_ns[-1])
     pim = preintegrate(imu, end - 100_000_000, end + 5_000_000, bias_accel=np.zeros(3), bias_gyro=np.zeros(3), params=PARAMS)
     assert pim.deltaTij() == pytest.approx(0.105, abs=1e-12)
@@ -174,14 +174,14 @@ def test_the_data_s_last_sample_holds_until_t1(imu) -> None:  # noqa: ANN001
 @pytest.mark.parametrize(
     ("t0_ns", "t1_ns", "drop", "message"),
     [
-        (-1, 500_000_000, None, "do not cover"),                      # before the first sample
-        (2_900_000_000, 3_100_000_000, None, "holds for"),            # past the data's end
-        (T0_NS, T1_NS, slice(250, 254), "holds for"),                 # 25 ms gap inside
+        (-1, 500_000_000, None, "do not cover"),  # before the first sample
+        (2_900_000_000, 3_100_000_000, None, "holds for"),  # past the data's end
+        (T0_NS, T1_NS, slice(250, 254), "holds for"),  # 25 ms gap inside
         (T1_NS, T0_NS, None, "is empty"),
         (T0_NS, T0_NS, None, "is empty"),
     ],
 )
-def test_coverage_and_gap_errors_are_one_line(imu, t0_ns: int, t1_ns: int, drop: slice | None, message: str) -> None:  # noqa: ANN001
+def test_coverage_and_gap_errors_are_one_line(imu, t0_ns: int, t1_ns: int, drop: slice | None, message: str) -> None:
     if drop is not None:
         keep = np.ones(len(imu), dtype=bool)
         keep[drop] = False
@@ -191,7 +191,7 @@ def test_coverage_and_gap_errors_are_one_line(imu, t0_ns: int, t1_ns: int, drop:
     assert "\n" not in str(error.value)
 
 
-def test_a_gap_within_max_gap_ns_is_integrated_across(trajectory, imu) -> None:  # noqa: ANN001
+def test_a_gap_within_max_gap_ns_is_integrated_across(trajectory, imu) -> None:
     keep = np.ones(len(imu), dtype=bool)
     keep[250] = False  # one dropped sample: 10 ms held reading
     holed = ImuData(imu.timestamp_ns[keep], imu.gyro[keep], imu.accel[keep])

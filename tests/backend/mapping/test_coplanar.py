@@ -99,8 +99,8 @@ def test_segment_with_one_endpoint_off_the_plane_is_an_outlier() -> None:
     points = _on_plane(rng, 30)
     start = _on_plane(rng, 4)
     end = _on_plane(rng, 4)
-    end[1] += 0.5 * N_TRUE   # second segment: one end 0.5 m off
-    end[3] -= 0.2 * N_TRUE   # fourth: 0.2 m off on the other side (threshold 0.15 m)
+    end[1] += 0.5 * N_TRUE  # second segment: one end 0.5 m off
+    end[3] -= 0.2 * N_TRUE  # fourth: 0.2 m off on the other side (threshold 0.15 m)
     segments = np.stack([start, end], axis=1)
     cons = ransac_plane(points, segments, rng=rng)
     assert cons is not None
@@ -259,9 +259,16 @@ def _detect_floor_owned_by(plane_n: np.ndarray, plane_d: float, *, seed: int) ->
     planes = coplanar.PlaneSet(n=[np.asarray(plane_n, float)], d=[plane_d], consensus=[(1.0, 40)])
     owner = np.where(np.arange(30) < 20, 0, -1)
     det = coplanar.detect_keyframe_planes(
-        point_ids=np.arange(30), point_label=np.zeros(30, np.int64), p_world=floor,
-        line_ids=np.zeros(0, np.int64), line_label=np.zeros(0, np.int64), segments_world=np.zeros((0, 2, 3)),
-        point_plane=owner, line_plane=np.zeros(0, np.int64), planes=planes, rng=np.random.default_rng(3),
+        point_ids=np.arange(30),
+        point_label=np.zeros(30, np.int64),
+        p_world=floor,
+        line_ids=np.zeros(0, np.int64),
+        line_label=np.zeros(0, np.int64),
+        segments_world=np.zeros((0, 2, 3)),
+        point_plane=owner,
+        line_plane=np.zeros(0, np.int64),
+        planes=planes,
+        rng=np.random.default_rng(3),
     )
     return det, planes, owner
 

@@ -17,8 +17,16 @@ def _map_with_two_keyframes() -> Map:
     m.add_keyframe(0, np.eye(3), np.zeros(3), stamp_ns=0, T_world_true=np.eye(4))
     m.record_frame(1, 0, so3.exp(np.array([0.0, 0.0, 0.1])), np.array([0.1, 0.0, 0.0]))
     m.add_keyframe(2, np.eye(3), np.array([0.2, 0.0, 0.0]), stamp_ns=100, T_world_true=None)
-    m.points.add(p_world=np.ones((2, 3)), ok=np.ones(2, bool), anchor=np.zeros(2, np.int64), anchor_uv=np.zeros((2, 2)), anchor_ur=np.zeros(2),
-                 plane=np.full(2, -1), desc=np.zeros((2, 32), np.uint8), n_kf=np.ones(2, np.int64))
+    m.points.add(
+        p_world=np.ones((2, 3)),
+        ok=np.ones(2, bool),
+        anchor=np.zeros(2, np.int64),
+        anchor_uv=np.zeros((2, 2)),
+        anchor_ur=np.zeros(2),
+        plane=np.full(2, -1),
+        desc=np.zeros((2, 32), np.uint8),
+        n_kf=np.ones(2, np.int64),
+    )
     return m
 
 

@@ -33,8 +33,7 @@ def test_triangulate_points_is_exact_without_noise() -> None:
     R, t = _poses()
     rng = np.random.default_rng(0)
     p_true = np.column_stack([rng.uniform(3.0, 6.0, 8), rng.uniform(-1.0, 1.0, 8), rng.uniform(-0.8, 0.8, 8)])
-    views = [np.array([0, 1]), np.array([0, 1, 2, 3]), np.array([3, 1, 2]), np.array([2, 0]), np.array([1, 3]),
-             np.array([0, 2, 3]), np.array([3, 0]), np.array([0, 1, 2])]
+    views = [np.array([0, 1]), np.array([0, 1, 2, 3]), np.array([3, 1, 2]), np.array([2, 0]), np.array([1, 3]), np.array([0, 2, 3]), np.array([3, 0]), np.array([0, 1, 2])]
     x = [np.stack([_normalized(R[k], t[k], p_true[i]) for k in ks]) for i, ks in enumerate(views)]
     X = triangulate_points(x, views, R, t)
     assert X.shape == (8, 3)

@@ -254,10 +254,7 @@ def test_legend_has_one_line_per_nonempty_group() -> None:
     def legend_height(groups: list[HessianGroup]) -> int:
         n = sum(g.size for g in groups)
         pattern = np.eye(n)
-        return (
-            render_hessian(pattern, groups, max_px=300, legend=True).height
-            - render_hessian(pattern, groups, max_px=300, legend=False).height
-        )
+        return render_hessian(pattern, groups, max_px=300, legend=True).height - render_hessian(pattern, groups, max_px=300, legend=False).height
 
     two = legend_height(make_groups(("cameras", 6, 1), ("points", 6, 2)))
     two_plus_empty = legend_height(make_groups(("cameras", 6, 1), ("points", 6, 2), ("planes", 0, 0)))

@@ -61,17 +61,36 @@ def _vio_data(*, seed: int = 0, n_kf: int = 6, n_points: int = 160, pixel_noise:
     bias0 = np.zeros(6)
     pims = tuple(imu_factor(preintegrate(imu, int(stamps[k]), int(stamps[k + 1]), bias_accel=bias0[:3], bias_gyro=bias0[3:], params=params)) for k in range(n_kf - 1))
     ine = inertial.InertialData(
-        T_body_camera=T_BODY_CAM0.copy(), velocity=v_w.copy(), bias=np.zeros((n_kf, 6)), free=np.ones(n_kf, bool),
-        imu_i=np.arange(n_kf - 1), imu_j=np.arange(1, n_kf), imu=pims, dt_s=np.diff(t), noise=ImuNoise(),
+        T_body_camera=T_BODY_CAM0.copy(),
+        velocity=v_w.copy(),
+        bias=np.zeros((n_kf, 6)),
+        free=np.ones(n_kf, bool),
+        imu_i=np.arange(n_kf - 1),
+        imu_j=np.arange(1, n_kf),
+        imu=pims,
+        dt_s=np.diff(t),
+        noise=ImuNoise(),
         prior=_pose_prior(R_wc[0], t_wc[0], v_w[0]),
     )
     data = ProblemData(
-        camera=MONO, poses=Poses(R_wc.copy(), t_wc.copy()),
-        point_anchor=np.zeros(n_points, np.int64), point_anchor_uv=anchor_uv, point_rho=rho, point_plane=np.where(floor, 0, -1),
+        camera=MONO,
+        poses=Poses(R_wc.copy(), t_wc.copy()),
+        point_anchor=np.zeros(n_points, np.int64),
+        point_anchor_uv=anchor_uv,
+        point_rho=rho,
+        point_plane=np.where(floor, 0, -1),
         point_obs=Observations(landmark, pose, uv, np.zeros((len(landmark), 3))),
-        line_anchor=np.zeros(0, np.int64), line_anchor_uv=np.zeros((0, 4)), line_U=np.zeros((0, 3, 3)), line_phi=np.zeros((0, 2)),
-        line_plane=np.zeros(0, np.int64), line_obs=Observations.empty(4),
-        plane_n=np.array([[0.0, 0.0, 1.0]]), plane_d=np.array([0.0]), odometry=None, prior=None, inertial=ine,
+        line_anchor=np.zeros(0, np.int64),
+        line_anchor_uv=np.zeros((0, 4)),
+        line_U=np.zeros((0, 3, 3)),
+        line_phi=np.zeros((0, 2)),
+        line_plane=np.zeros(0, np.int64),
+        line_obs=Observations.empty(4),
+        plane_n=np.array([[0.0, 0.0, 1.0]]),
+        plane_d=np.array([0.0]),
+        odometry=None,
+        prior=None,
+        inertial=ine,
     )
     return data, {"R_wc": R_wc, "t_wc": t_wc, "v": v_w, "b_g": b_g, "b_a": b_a, "p_w": p_w}
 
@@ -81,9 +100,16 @@ def _pose_prior(R: np.ndarray, t: np.ndarray, v: np.ndarray, sigma: float = 1e-3
     loosely (1 m/s) and its biases (0.1 m/s², 0.01 rad/s) around zero."""
     A = np.diag(np.r_[np.full(6, 1.0 / sigma), np.full(3, 1.0), np.full(3, 10.0), np.full(3, 100.0)])
     return inertial.LinearPrior(
-        pose_index=np.array([0]), inertial_index=np.array([0]), plane_index=np.zeros(0, np.int64),
-        R=R[None].copy(), t=t[None].copy(), inertial=np.r_[v, np.zeros(6)][None], plane_n=np.zeros((0, 3)), plane_d=np.zeros(0),
-        A=A, b=np.zeros(15),
+        pose_index=np.array([0]),
+        inertial_index=np.array([0]),
+        plane_index=np.zeros(0, np.int64),
+        R=R[None].copy(),
+        t=t[None].copy(),
+        inertial=np.r_[v, np.zeros(6)][None],
+        plane_n=np.zeros((0, 3)),
+        plane_d=np.zeros(0),
+        A=A,
+        b=np.zeros(15),
     )
 
 
@@ -94,10 +120,16 @@ def test_inertial_problem_jacobian_matches_numeric(variant: str) -> None:
     data, _ = _vio_data(n_kf=4, n_points=16)
     rng = np.random.default_rng(3)
     prior = inertial.LinearPrior(
-        pose_index=np.array([0, 2]), inertial_index=np.array([1]), plane_index=np.array([0]),
-        R=data.poses.R_world_camera[[0, 2]] @ so3.exp(0.01 * rng.standard_normal((2, 3))), t=data.poses.t_world_camera[[0, 2]] + 0.01,
-        inertial=np.concatenate([data.inertial.velocity[[1]], np.zeros((1, 6))], axis=1) + 0.01, plane_n=np.array([[0.05, -0.03, 1.0]]) / np.linalg.norm([0.05, -0.03, 1.0]),
-        plane_d=np.array([0.02]), A=rng.standard_normal((10, 24)), b=rng.standard_normal(10),
+        pose_index=np.array([0, 2]),
+        inertial_index=np.array([1]),
+        plane_index=np.array([0]),
+        R=data.poses.R_world_camera[[0, 2]] @ so3.exp(0.01 * rng.standard_normal((2, 3))),
+        t=data.poses.t_world_camera[[0, 2]] + 0.01,
+        inertial=np.concatenate([data.inertial.velocity[[1]], np.zeros((1, 6))], axis=1) + 0.01,
+        plane_n=np.array([[0.05, -0.03, 1.0]]) / np.linalg.norm([0.05, -0.03, 1.0]),
+        plane_d=np.array([0.02]),
+        A=rng.standard_normal((10, 24)),
+        b=rng.standard_normal(10),
     )
     data = dataclasses.replace(data, inertial=dataclasses.replace(data.inertial, prior=prior))
     problem = build_problem(data, variant)
@@ -175,12 +207,23 @@ def test_marginalizing_at_the_optimum_keeps_the_solution_and_the_marginal_covari
     sel = stays[o.landmark]
     ine = data.inertial
     reduced = dataclasses.replace(
-        data, poses=Poses(state.poses.R_world_camera[keep_kf].copy(), state.poses.t_world_camera[keep_kf].copy()),
-        point_anchor=pose_map[anchor[pts]], point_anchor_uv=anchor_uv[pts], point_rho=state.rho[pts], point_plane=data.point_plane[pts],
+        data,
+        poses=Poses(state.poses.R_world_camera[keep_kf].copy(), state.poses.t_world_camera[keep_kf].copy()),
+        point_anchor=pose_map[anchor[pts]],
+        point_anchor_uv=anchor_uv[pts],
+        point_rho=state.rho[pts],
+        point_plane=data.point_plane[pts],
         point_obs=Observations(pt_map[o.landmark[sel]], pose_map[o.pose[sel]], o.uv[sel], o.offset[sel]),
         inertial=dataclasses.replace(
-            ine, velocity=state.velocity[keep_kf].copy(), bias=state.bias[keep_kf].copy(), free=np.ones(5, bool),
-            imu_i=np.arange(4), imu_j=np.arange(1, 5), imu=ine.imu[1:], dt_s=ine.dt_s[1:], prior=remap(prior, pose_map=pose_map),
+            ine,
+            velocity=state.velocity[keep_kf].copy(),
+            bias=state.bias[keep_kf].copy(),
+            free=np.ones(5, bool),
+            imu_i=np.arange(4),
+            imu_j=np.arange(1, 5),
+            imu=ine.imu[1:],
+            dt_s=ine.dt_s[1:],
+            prior=remap(prior, pose_map=pose_map),
         ),
     )
     problem = build_problem(reduced, "P-wo")

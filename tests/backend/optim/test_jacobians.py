@@ -26,7 +26,10 @@ def _stereo_data(seed: int = 1) -> ProblemData:
     right = Observations(right.landmark, right.pose, right.uv + np.array([-12.0, 0.3]), np.tile(b, (len(right), 1)))
     lright = lo.select(lo.pose < keep_poses)
     lright = Observations(lright.landmark, lright.pose, lright.uv + np.array([-10.0, 0.2, -11.0, -0.1]), np.tile(b, (len(lright), 1)))
-    both = lambda a, c: Observations(*(np.concatenate([x, y]) for x, y in zip((a.landmark, a.pose, a.uv, a.offset), (c.landmark, c.pose, c.uv, c.offset))))
+
+    def both(a: Observations, c: Observations) -> Observations:
+        return Observations(*(np.concatenate([x, y]) for x, y in zip((a.landmark, a.pose, a.uv, a.offset), (c.landmark, c.pose, c.uv, c.offset))))
+
     fixed = np.zeros(len(data.poses), bool)
     fixed[3] = True
     return ProblemData(**{**data.__dict__, "point_obs": both(po, right), "line_obs": both(lo, lright), "fixed_poses": fixed})
@@ -44,7 +47,7 @@ def _numeric_jacobian(problem, state, eps: float = 1e-6) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def linearize_against_numeric(problem, state, label: str):  # noqa: ANN001, ANN201
+def linearize_against_numeric(problem, state, label: str):
     """`problem.linearize(state)`, after asserting that its analytic Jacobian matches central
     differences (relative to each column's scale, at least 1) to 1e-5."""
     lin = problem.linearize(state)

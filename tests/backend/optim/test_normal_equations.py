@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from backend.optim.problem import build_problem
-
 from backend.optim.variant import VARIANTS
 from tests.backend.optim.test_jacobians import _stereo_data
 

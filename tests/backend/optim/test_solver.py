@@ -113,7 +113,7 @@ class _WrongJacobian(Problem):
     """A problem whose Jacobian has the wrong sign: every Gauss-Newton or damped step goes
     uphill, so no step lowers the cost although the linear model promises a decrease."""
 
-    def linearize(self, state):  # noqa: ANN001, ANN201
+    def linearize(self, state):
         lin = super().linearize(state)
         batches = tuple(dataclasses.replace(b, jacobian=-b.jacobian) for b in lin.batches)
         return Linearization(batches, lin.costs, lin.n_params)

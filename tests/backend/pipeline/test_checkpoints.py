@@ -19,7 +19,7 @@ ENGINES: dict[str, Callable[[], object]] = {
 }
 
 
-def _same(a, b) -> None:  # noqa: ANN001
+def _same(a, b) -> None:
     assert a.keyframe == b.keyframe and a.report.final_cost == b.report.final_cost
     np.testing.assert_array_equal(a.estimate.t_world_camera, b.estimate.t_world_camera)
     np.testing.assert_array_equal(a.points.p_world, b.points.p_world)

@@ -54,11 +54,14 @@ def test_a_dataset_and_the_oracle_it_cannot_have(tmp_path: pathlib.Path) -> None
         EngineConfig(scene="room", dataset=tmp_path)
 
 
-@pytest.mark.parametrize("argv", [
-    ["run", "--scene", "boxes", "--duration", "2", "--variant", "P-w", "--window", "5", "--seed", "2", "--out", "x"],
-    ["serve", "--scene", "corridor", "--duration", "3", "--mode", "vio", "--segmenter", "geometric"],
-    ["serve", "--scene", "mc-a", "--variant", "PL-r", "--mislabel", "0.3"],
-])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["run", "--scene", "boxes", "--duration", "2", "--variant", "P-w", "--window", "5", "--seed", "2", "--out", "x"],
+        ["serve", "--scene", "corridor", "--duration", "3", "--mode", "vio", "--segmenter", "geometric"],
+        ["serve", "--scene", "mc-a", "--variant", "PL-r", "--mislabel", "0.3"],
+    ],
+)
 def test_the_command_line_builds_through_the_same_config(argv: list[str]) -> None:
     """The CLI's engine equals the one its EngineConfig describes: same class, name, settings."""
     args = cli.build_parser().parse_args(argv)

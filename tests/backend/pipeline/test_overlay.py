@@ -11,8 +11,15 @@ import pytest
 from backend.common.palette import NON_PLANAR, plane_color
 from backend.pipeline import overlay
 from backend.pipeline.overlay import (
-    POINT_COLORS, POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED, REJECTED_TINT, TINT_ALPHA,
-    decode_keyframe_image, draw_keyframe_image,
+    POINT_COLORS,
+    POINT_NEW,
+    POINT_OUTLIER,
+    POINT_TRACKED,
+    POINT_UNUSED,
+    REJECTED_TINT,
+    TINT_ALPHA,
+    decode_keyframe_image,
+    draw_keyframe_image,
 )
 from backend.pipeline.snapshot import KeyframeImage
 
@@ -24,9 +31,13 @@ JPEG_TOL = 24  # per channel, for flat colour areas after JPEG at quality 95
 def _none(**kw: object) -> dict[str, object]:
     """Empty feature arrays and no instances, overridden by `kw`."""
     args: dict[str, object] = dict(
-        points_uv=np.zeros((0, 2)), point_status=np.zeros(0, np.uint8),
-        segments_uv=np.zeros((0, 2, 2)), segment_plane=np.zeros(0, np.int64),
-        instance_labels=None, instance_plane=None, quality=95,
+        points_uv=np.zeros((0, 2)),
+        point_status=np.zeros(0, np.uint8),
+        segments_uv=np.zeros((0, 2, 2)),
+        segment_plane=np.zeros(0, np.int64),
+        instance_labels=None,
+        instance_plane=None,
+        quality=95,
     )
     args.update(kw)
     return args
@@ -112,7 +123,7 @@ def test_segment_pixels_carry_their_plane_colour() -> None:
     segments = np.array([[[100.0, 200.0], [600.0, 200.0]], [[100.0, 300.0], [600.0, 300.0]]])
     rgb = decode_keyframe_image(draw_keyframe_image(_grey(), **_none(segments_uv=segments, segment_plane=np.array([1, -1])))).astype(float)
     for row, color in ((200, plane_color(1)), (300, NON_PLANAR)):
-        band = rgb[row - 1:row + 2, 150:550]  # 2 px thick, anti-aliased: the closest row
+        band = rgb[row - 1 : row + 2, 150:550]  # 2 px thick, anti-aliased: the closest row
         errors = [np.linalg.norm(band[i].mean(axis=0) - color) for i in range(3)]
         assert min(errors) < 40.0, (row, errors)
     # Plane 1 is orange: red well above blue on the line, grey elsewhere.
@@ -126,7 +137,7 @@ def test_points_are_drawn_in_their_state_colour_at_their_position() -> None:
     status = np.array([POINT_TRACKED, POINT_TRACKED, POINT_NEW, POINT_OUTLIER, POINT_UNUSED], np.uint8)
     rgb = decode_keyframe_image(draw_keyframe_image(_grey(), **_none(points_uv=uv, point_status=status))).astype(int)
     for (u, v), s in zip(uv.astype(int), status):
-        centre = rgb[v - 1:v + 2, u - 1:u + 2].reshape(-1, 3).mean(axis=0) if s != POINT_UNUSED else rgb[v, u]
+        centre = rgb[v - 1 : v + 2, u - 1 : u + 2].reshape(-1, 3).mean(axis=0) if s != POINT_UNUSED else rgb[v, u]
         assert np.abs(centre - POINT_COLORS[s]).max() < 40, (s, centre)
     green = rgb[60, 50]
     assert green[1] > 180 and green[0] < 100 and green[2] < 100  # RGB order, not BGR
@@ -197,11 +208,14 @@ def test_drawing_a_busy_keyframe_is_fast() -> None:
     labels = np.full((H, W), -1, np.int16)
     for i in range(12):
         r, c = divmod(i, 4)
-        labels[r * 160:(r + 1) * 160 - 10, c * 188:(c + 1) * 188 - 10] = i
+        labels[r * 160 : (r + 1) * 160 - 10, c * 188 : (c + 1) * 188 - 10] = i
     args = dict(
-        points_uv=rng.uniform(0, [W, H], (1000, 2)), point_status=rng.integers(0, 4, 1000).astype(np.uint8),
-        segments_uv=rng.uniform(0, [W, H], (150, 2, 2)), segment_plane=rng.integers(-1, 8, 150),
-        instance_labels=labels, instance_plane=np.where(np.arange(12) % 3 == 2, -1, np.arange(12)),
+        points_uv=rng.uniform(0, [W, H], (1000, 2)),
+        point_status=rng.integers(0, 4, 1000).astype(np.uint8),
+        segments_uv=rng.uniform(0, [W, H], (150, 2, 2)),
+        segment_plane=rng.integers(-1, 8, 150),
+        instance_labels=labels,
+        instance_plane=np.where(np.arange(12) % 3 == 2, -1, np.arange(12)),
     )
     draw_keyframe_image(image, **args)
     times = []

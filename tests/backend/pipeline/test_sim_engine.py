@@ -26,11 +26,18 @@ MAX_RMSE_CM_30 = 15.0
 def _arrays(snapshot: Snapshot) -> dict[str, np.ndarray]:
     """Copies of the snapshot's per-keyframe and map arrays, for later comparison."""
     out = {
-        "est_t": snapshot.estimate.t_world_camera, "est_R": snapshot.estimate.R_world_camera,
-        "est_stamp": snapshot.estimate.timestamp_ns, "gt_t": snapshot.ground_truth.t_world_camera,
-        "window": snapshot.window, "points.id": snapshot.points.id, "points.p": snapshot.points.p_world,
-        "points.plane": snapshot.points.plane, "points.det": snapshot.points.detection,
-        "lines.id": snapshot.lines.id, "lines.seg": snapshot.lines.segment_world, "lines.plane": snapshot.lines.plane,
+        "est_t": snapshot.estimate.t_world_camera,
+        "est_R": snapshot.estimate.R_world_camera,
+        "est_stamp": snapshot.estimate.timestamp_ns,
+        "gt_t": snapshot.ground_truth.t_world_camera,
+        "window": snapshot.window,
+        "points.id": snapshot.points.id,
+        "points.p": snapshot.points.p_world,
+        "points.plane": snapshot.points.plane,
+        "points.det": snapshot.points.detection,
+        "lines.id": snapshot.lines.id,
+        "lines.seg": snapshot.lines.segment_world,
+        "lines.plane": snapshot.lines.plane,
     }
     for p in snapshot.planes:
         out[f"plane{p.id}.n"], out[f"plane{p.id}.hull"] = p.n, p.hull_world
@@ -114,10 +121,21 @@ def test_window_holds_the_last_keyframes(run_a: _Run) -> None:
 def test_snapshot_arrays_are_read_only(run_a: _Run) -> None:
     snap = run_a.snapshots[40]
     arrays = [
-        snap.estimate.t_world_camera, snap.estimate.R_world_camera, snap.estimate.timestamp_ns,
-        snap.ground_truth.t_world_camera, snap.window, snap.points.id, snap.points.p_world, snap.points.plane,
-        snap.points.anchor, snap.points.detection, snap.lines.id, snap.lines.segment_world, snap.lines.plane,
-        snap.lines.anchor, snap.lines.detection,
+        snap.estimate.t_world_camera,
+        snap.estimate.R_world_camera,
+        snap.estimate.timestamp_ns,
+        snap.ground_truth.t_world_camera,
+        snap.window,
+        snap.points.id,
+        snap.points.p_world,
+        snap.points.plane,
+        snap.points.anchor,
+        snap.points.detection,
+        snap.lines.id,
+        snap.lines.segment_world,
+        snap.lines.plane,
+        snap.lines.anchor,
+        snap.lines.detection,
     ]
     for chunk in snap.estimate.chunks:
         arrays.extend(chunk)
@@ -366,7 +384,7 @@ def test_same_settings_give_the_same_snapshots() -> None:
     again = one.step()
     assert again.keyframe == 0
     _assert_same(_arrays(first[0]), _arrays(again))
-    for k in range(1, 12):
+    for _ in range(1, 12):
         again = one.step()
     assert again.keyframe == 11
     _assert_same(_arrays(first[11]), _arrays(again))

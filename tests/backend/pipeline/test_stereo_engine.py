@@ -12,10 +12,10 @@ from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
 from backend.eval.planes import recovered_planes
 from backend.optim.variant import VARIANTS
-from backend.pipeline.stages.culling import CullSettings, cull
 from backend.pipeline.engine import EndOfSequence, Engine
 from backend.pipeline.overlay import decode_keyframe_image
 from backend.pipeline.snapshot import Snapshot
+from backend.pipeline.stages.culling import CullSettings, cull
 from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
 
 

@@ -37,8 +37,8 @@ class Keyframes:
     timestamps_ns: np.ndarray
     R_c0_cam: np.ndarray
     p_c0_cam: np.ndarray
-    R_world_c0: np.ndarray       # truth
-    velocity_c0: np.ndarray      # truth, body origin, m/s
+    R_world_c0: np.ndarray  # truth
+    velocity_c0: np.ndarray  # truth, body origin, m/s
 
 
 def keyframes(seq: SyntheticSequence, duration_s: float, *, rate_hz: float = 10.0, rotation_deg: float = 0.2, position_fraction: float = 0.005, seed: int = 0) -> Keyframes:
@@ -182,7 +182,7 @@ class _RotationAboutTheCamera:
         return (self.position(t + h) - self.position(t - h)) / (2 * h)
 
 
-def _camera_poses(trajectory, t_ns: np.ndarray, T_body_cam0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+def _camera_poses(trajectory, t_ns: np.ndarray, T_body_cam0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera poses in c0 of a trajectory with rotation/position (noise-free)."""
     R_wb = trajectory.rotation(t_ns * 1e-9)
     p_wb = trajectory.position(t_ns * 1e-9) if hasattr(trajectory, "position") else np.zeros((len(t_ns), 3))
