@@ -91,11 +91,13 @@ class RenderedTruth(Protocol):
 
 @dataclasses.dataclass(frozen=True)
 class DatasetFormat:
-    """One reader of the registry: its name, whether a path holds its files, and how to open it."""
+    """One reader of the registry: its name, whether a path holds its files, how to open
+    it, and the label an engine's name gives such an input (e.g. "EuRoC folder")."""
 
     name: str
     recognizes: Callable[[pathlib.Path], bool]
     open: Callable[[pathlib.Path], StereoSource]
+    label: str
 
 
 def _is_euroc(path: pathlib.Path) -> bool:
@@ -123,16 +125,18 @@ def _open_scene_file(path: pathlib.Path) -> StereoSource:
 
 
 DATASET_FORMATS: tuple[DatasetFormat, ...] = (
-    DatasetFormat("EuRoC ASL folder (holding mav0)", _is_euroc, _open_euroc),
-    DatasetFormat("rendered scene file (.json, frames rendered on demand)", _is_scene_file, _open_scene_file),
+    DatasetFormat("EuRoC ASL folder (holding mav0)", _is_euroc, _open_euroc, "EuRoC folder"),
+    DatasetFormat("rendered scene file (.json, frames rendered on demand)", _is_scene_file, _open_scene_file, "rendered scene file"),
 )
 
 
-def open_dataset(path: pathlib.Path | str) -> StereoSource:
-    """The input at `path`, read by the first format that recognizes it. A path no format
-    recognizes is read as an EuRoC folder, whose reader says in one line what is missing."""
+def dataset_format(path: pathlib.Path | str) -> DatasetFormat:
+    """The first format that recognizes `path`; EuRoC when none does (its reader then says
+    in one line what is missing)."""
     path = pathlib.Path(path)
-    for fmt in DATASET_FORMATS:
-        if fmt.recognizes(path):
-            return fmt.open(path)
-    return DATASET_FORMATS[0].open(path)
+    return next((fmt for fmt in DATASET_FORMATS if fmt.recognizes(path)), DATASET_FORMATS[0])
+
+
+def open_dataset(path: pathlib.Path | str) -> StereoSource:
+    """The input at `path`, read by the format that recognizes it (:func:`dataset_format`)."""
+    return dataset_format(path).open(pathlib.Path(path))

@@ -138,10 +138,10 @@ def _stage_options(config: EngineConfig) -> dict[str, Any]:
 def _open_images(config: EngineConfig) -> tuple[object, str]:
     """The image source and its name as the debugger and the reports show it."""
     if config.dataset is not None:
-        from backend.data.source import RenderedTruth, open_dataset
+        from backend.data.source import dataset_format
 
-        source = open_dataset(config.dataset)
-        return source, f"{'rendered scene file' if isinstance(source, RenderedTruth) else 'EuRoC folder'} {config.dataset}"
+        fmt = dataset_format(config.dataset)
+        return fmt.open(pathlib.Path(config.dataset)), f"{fmt.label} {config.dataset}"
     from backend.data.scenes import DEFAULT_SCENE, SCENE_NAMES, builtin_scene, load_scene
     from backend.data.synthetic import SequenceSettings, SyntheticSequence
 
