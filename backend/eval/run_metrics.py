@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
+from backend.common.timing import PER_FRAME_STAGES, Stage
 from backend.eval.trajectory import ate_rmse, relative_pose_error, translational_rmse, umeyama_alignment
 
-PER_FRAME_STAGES = ("point_dm", "tracking", "load")  # timed per frame within a step; every other stage per keyframe
 RPE_DELTA_M = 1.0  # path length per relative-pose-error pair, metres
 
 
@@ -72,15 +72,16 @@ def stereo_timing(steps: list[tuple[int, dict[str, float]]]) -> dict:
         stages += [k for k in step_timing if k not in stages]
     mean: dict[str, float | None] = {}
     for stage in stages:
-        if stage == "total_per_frame":
+        if stage == Stage.TOTAL_PER_FRAME:
             continue
         if stage in PER_FRAME_STAGES:
             mean[stage] = sum(f * t.get(stage, 0.0) for f, t in steps) / frames if frames else None
         else:
             ran = [t[stage] for _, t in steps if t.get(stage, 0.0) != 0.0]
             mean[stage] = sum(ran) / len(ran) if ran else None
-    mean["total_per_frame"] = sum(t.get("total", 0.0) for _, t in steps) / frames if frames else None
-    timing: dict[str, Any] = {k: mean.get(k) for k in ("point_dm", "tracking", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame")}
+    mean[Stage.TOTAL_PER_FRAME] = sum(t.get(Stage.TOTAL, 0.0) for _, t in steps) / frames if frames else None
+    contract = (Stage.POINT_DM, Stage.TRACKING, Stage.LINE_DM, Stage.PLANE_SEG, Stage.PLANE_FIT, Stage.OPTIMIZATION, Stage.TOTAL_PER_FRAME)  # DESIGN §7
+    timing: dict[str, Any] = {k: mean.get(k) for k in contract}
     timing["all_stages"] = mean
     return timing
 

@@ -28,6 +28,7 @@ import time
 import numpy as np
 
 from backend.common.buffers import RowBuffer
+from backend.common.timing import Stage
 from backend.eval import sequences
 from backend.eval.trajectory import ate_rmse, translational_rmse
 from backend.geometry import line as line_geo
@@ -232,13 +233,13 @@ class SimEngine:
         t0 = time.perf_counter()
         rng = np.random.default_rng([s.seed, k, 0x5E])
         self._add_keyframe(k, rng)
-        timing["tracking"] = 1e3 * (time.perf_counter() - t0)
+        timing[Stage.TRACKING] = 1e3 * (time.perf_counter() - t0)
         t1 = time.perf_counter()
         new_points, new_lines = self._triangulate(k)
-        timing["triangulation"] = 1e3 * (time.perf_counter() - t1)
+        timing[Stage.TRIANGULATION] = 1e3 * (time.perf_counter() - t1)
         t1 = time.perf_counter()
         detection, state = self._detect_planes(k, new_points, new_lines, rng)
-        timing["detection"] = 1e3 * (time.perf_counter() - t1)
+        timing[Stage.DETECTION] = 1e3 * (time.perf_counter() - t1)
         self._prune(k)
         return self._optimize(k, detection, state, timing, t0)
 
@@ -553,11 +554,11 @@ class SimEngine:
         win = self._window_data(k)
         self._window = win
         problem = build_problem(win.data, self._variant)
-        timing["setup"] = 1e3 * (time.perf_counter() - t0)
+        timing[Stage.SETUP] = 1e3 * (time.perf_counter() - t0)
         state, rep = optimize(problem, method=s.method, max_iterations=s.max_iterations)
-        timing["optimization"] = rep.time_ms
-        timing["linearize"] = rep.linearize_ms
-        timing["solve"] = rep.solve_ms
+        timing[Stage.OPTIMIZATION] = rep.time_ms
+        timing[Stage.LINEARIZE] = rep.linearize_ms
+        timing[Stage.SOLVE] = rep.solve_ms
         t0 = time.perf_counter()
         assert win.data.fixed_poses is not None
         free = ~win.data.fixed_poses
@@ -580,11 +581,11 @@ class SimEngine:
             if used[i]:
                 self._plane_n[q], self._plane_d[q] = state.plane_n[i].copy(), float(state.plane_d[i])
         self._refit_unused_planes(set(int(q) for q, u in zip(win.planes, used) if u))
-        timing["update"] = 1e3 * (time.perf_counter() - t0)
+        timing[Stage.UPDATE] = 1e3 * (time.perf_counter() - t0)
         t0 = time.perf_counter()
         hessian = hessian_structure(problem, state)
-        timing["hessian"] = 1e3 * (time.perf_counter() - t0)
-        timing["total"] = 1e3 * (time.perf_counter() - t_start)
+        timing[Stage.HESSIAN] = 1e3 * (time.perf_counter() - t0)
+        timing[Stage.TOTAL] = 1e3 * (time.perf_counter() - t_start)
         report = OptimizationReport(
             variant=self._variant,
             method=s.method,

@@ -54,6 +54,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from backend.common.timing import PER_FRAME_STAGES, Stage
 from backend.data.source import StereoSource
 from backend.frontend.lines import LineSettings, Segments, StereoSegments, stereo_segments
 from backend.frontend.points import Keypoints, PointSettings, best_matches, detect_points, pair_hamming, stereo_points
@@ -235,7 +236,7 @@ class StereoEngine:
     def step(self) -> Snapshot:
         s = self.settings
         t_start = time.perf_counter()
-        timing = {"point_dm": 0.0, "tracking": 0.0}
+        timing: dict[str, float] = {Stage.POINT_DM: 0.0, Stage.TRACKING: 0.0}
         frames = lost = reinitializations = 0
         messages = self._messages = []
         while True:
@@ -249,7 +250,7 @@ class StereoEngine:
             else:
                 tracked = self._track(i, kp)
                 reason = self._keyframe_reason(i, kp, tracked)
-            timing["tracking"] += 1e3 * (time.perf_counter() - t0)
+            timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
             self._remember_frame(i, tracked.R, tracked.t)
             if not tracked.ok:
                 lost += 1
@@ -279,12 +280,12 @@ class StereoEngine:
         self._next_frame += 1
         t0 = time.perf_counter()
         left, right = self.data_source.rectified_pair(i)
-        timing["load"] = timing.get("load", 0.0) + 1e3 * (time.perf_counter() - t0)
+        timing[Stage.LOAD] = timing.get(Stage.LOAD, 0.0) + 1e3 * (time.perf_counter() - t0)
         if self.on_frame is not None:
             self.on_frame(i)
         t0 = time.perf_counter()
         kp = detect_points(left, settings=self.settings.points)
-        timing["point_dm"] += 1e3 * (time.perf_counter() - t0)
+        timing[Stage.POINT_DM] += 1e3 * (time.perf_counter() - t0)
         return i, left, right, kp
 
     def reoptimize(self) -> Snapshot:
@@ -294,7 +295,7 @@ class StereoEngine:
         timing: dict[str, float] = {}
         t0 = time.perf_counter()
         report, hessian = self._optimize(last.keyframe, timing)
-        timing["total"] = 1e3 * (time.perf_counter() - t0)
+        timing[Stage.TOTAL] = 1e3 * (time.perf_counter() - t0)
         self._last = self._snapshot(last.keyframe, last.detection, self._det_state, report, hessian, image=last.image, tracking=last.tracking, message=last.message)
         return self._last
 
@@ -474,24 +475,24 @@ class StereoEngine:
         k = self.keyframes
         rng = np.random.default_rng([s.seed, k, 0x57E])
         frames_per = max(frames, 1)
-        for stage in ("point_dm", "tracking", "load"):
+        for stage in PER_FRAME_STAGES:
             timing[stage] = timing.get(stage, 0.0) / frames_per  # means per frame
 
         # 1. Stereo points (the left ORB is there already), segments and their map matches.
         t0 = time.perf_counter()
         stereo = stereo_points(left, right, camera=cam, settings=s.points, left_keypoints=kp)
-        timing["point_dm"] += 1e3 * (time.perf_counter() - t0) / frames_per
+        timing[Stage.POINT_DM] += 1e3 * (time.perf_counter() - t0) / frames_per
         local_p = self._local_points
         p_match = tracked.match if len(tracked.match) == len(local_p) else np.full(len(local_p), -1, np.int64)
         segs: StereoSegments | None = None
         l_match = np.zeros(0, np.int64)
         local_l = self._local_lines
-        timing["line_dm"] = 0.0
+        timing[Stage.LINE_DM] = 0.0
         if use_lines:
             t0 = time.perf_counter()
             segs = stereo_segments(left, right, camera=cam, settings=s.lines)
             l_match = self._match_lines(tracked.R, tracked.t, local_l, segs.left) if len(local_l) else np.full(0, -1, np.int64)
-            timing["line_dm"] = 1e3 * (time.perf_counter() - t0)
+            timing[Stage.LINE_DM] = 1e3 * (time.perf_counter() - t0)
 
         # 2. Pose refinement against points and lines.
         t0 = time.perf_counter()
@@ -506,7 +507,7 @@ class StereoEngine:
             err = pixel_errors(cam, R, t, self.map.points.p_world[local_p[mp]], stereo.uv_left[p_match[mp]])
             p_match = p_match.copy()
             p_match[mp[~(err < s.outlier_px)]] = -1
-        timing["tracking"] += 1e3 * (time.perf_counter() - t0) / frames_per
+        timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0) / frames_per
 
         # 3. The keyframe, its observations and new landmarks.
         t0 = time.perf_counter()
@@ -517,7 +518,7 @@ class StereoEngine:
         status[p_match[p_match >= 0]] = POINT_TRACKED
         status[self._new_point_kp] = POINT_NEW
         self._last_kf_tracked = len(obs.point_id)
-        timing["mapping"] = 1e3 * (time.perf_counter() - t0)
+        timing[Stage.MAPPING] = 1e3 * (time.perf_counter() - t0)
 
         # 4. Plane segmentation and co-planar detection, 5. window bundle adjustment, 6. culling.
         masks, detection, report, hessian = self._detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=(left, right) if use_planes else None)
@@ -528,10 +529,10 @@ class StereoEngine:
         if s.image_scale is not None:
             t0 = time.perf_counter()
             image = self._draw(left, kp, status, segs, obs, masks, detection)
-            timing["image"] = 1e3 * (time.perf_counter() - t0)
-        total = 1e3 * (time.perf_counter() - t_start) - timing["load"] * frames_per  # reading or rendering images is not the pipeline's
-        timing["total"] = total
-        timing["total_per_frame"] = total / frames_per
+            timing[Stage.IMAGE] = 1e3 * (time.perf_counter() - t0)
+        total = 1e3 * (time.perf_counter() - t_start) - timing[Stage.LOAD] * frames_per  # reading or rendering images is not the pipeline's
+        timing[Stage.TOTAL] = total
+        timing[Stage.TOTAL_PER_FRAME] = total / frames_per
         tracking = Tracking(
             frames=frames,
             lost_frames=lost,
@@ -551,22 +552,22 @@ class StereoEngine:
         masks: PlaneMasks | None = None
         detection = Detection((), (), (), (), ())
         self._det_state = FeatureStates.undetected(self.map, obs).as_tuple()
-        timing["plane_seg"] = timing["plane_fit"] = 0.0
+        timing[Stage.PLANE_SEG] = timing[Stage.PLANE_FIT] = 0.0
         if images is not None:
             t0 = time.perf_counter()
             masks = segment_keyframe(self.segmenter, i, *images, self.camera)
-            timing["plane_seg"] = 1e3 * (time.perf_counter() - t0)
+            timing[Stage.PLANE_SEG] = 1e3 * (time.perf_counter() - t0)
             t0 = time.perf_counter()
             found = detect_planes(self.map, obs, masks, new_points, new_lines, rng, settings=self.settings.coplanar)
             detection, self._det_state, self._instance_plane = found.detection, found.features.as_tuple(), found.instance_plane
-            timing["plane_fit"] = 1e3 * (time.perf_counter() - t0)
+            timing[Stage.PLANE_FIT] = 1e3 * (time.perf_counter() - t0)
         report, hessian = self._optimize(k, timing)
         t0 = time.perf_counter()
         s = self.settings
         w0, _ = self._window_range(k)
         cull(self.map, k, w0, settings=CullSettings(s.outlier_px, s.min_depth_m, s.max_depth_m, s.cull_after_keyframes, s.min_keyframe_observations))
         self._local_points, self._local_lines = local_map(self.map, k, w0)
-        timing["culling"] = 1e3 * (time.perf_counter() - t0)
+        timing[Stage.CULLING] = 1e3 * (time.perf_counter() - t0)
         return masks, detection, report, hessian
 
     def _add_keyframe(self, i: int, R: np.ndarray, t: np.ndarray) -> None:

@@ -56,6 +56,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from backend.common.timing import PER_FRAME_STAGES, Stage
 from backend.data.motion import ImuData
 from backend.data.source import RenderedTruth
 from backend.frontend.flow import FlowTracks, follow
@@ -225,7 +226,7 @@ class VioEngine(StereoEngine):
     def step(self) -> Snapshot:
         s = self.settings
         t_start = time.perf_counter()
-        timing = {"point_dm": 0.0, "tracking": 0.0}
+        timing: dict[str, float] = {Stage.POINT_DM: 0.0, Stage.TRACKING: 0.0}
         frames = lost = reinitializations = 0
         messages = self._messages = []
         bootstrap = None
@@ -245,7 +246,7 @@ class VioEngine(StereoEngine):
             elif self._bootstrapping:
                 bootstrap = self._bootstrap(i, kp, left)
                 if bootstrap is None:
-                    timing["tracking"] += 1e3 * (time.perf_counter() - t0)
+                    timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
                     if not self._restart_flow:
                         continue
                     # Nothing left to follow from the first keyframe: this frame starts again.
@@ -258,7 +259,7 @@ class VioEngine(StereoEngine):
             else:
                 tracked = self._track(i, kp)
                 reason = self._keyframe_reason(i, kp, tracked)
-            timing["tracking"] += 1e3 * (time.perf_counter() - t0)
+            timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
             if not tracked.ok and self._initialized and self._imu_only_run < s.max_imu_only_keyframes:
                 # The images alone lost the map (a fast turn): the IMU's prediction is the
                 # pose, and the frame becomes a keyframe so that new points are triangulated
@@ -463,7 +464,7 @@ class VioEngine(StereoEngine):
         k = self.keyframes
         rng = np.random.default_rng([s.seed, k, 0x57E])
         frames_per = max(frames, 1)
-        for stage in ("point_dm", "tracking", "load"):
+        for stage in PER_FRAME_STAGES:
             timing[stage] = timing.get(stage, 0.0) / frames_per
 
         local_p = self._local_points
@@ -471,12 +472,12 @@ class VioEngine(StereoEngine):
         segments: Segments | None = None
         l_match = np.zeros(0, np.int64)
         local_l = self._local_lines
-        timing["line_dm"] = 0.0
+        timing[Stage.LINE_DM] = 0.0
         if use_lines:
             t0 = time.perf_counter()
             segments = detect_segments(left, settings=s.lines)
             l_match = self._match_lines(tracked.R, tracked.t, local_l, segments) if len(local_l) else np.full(0, -1, np.int64)
-            timing["line_dm"] = 1e3 * (time.perf_counter() - t0)
+            timing[Stage.LINE_DM] = 1e3 * (time.perf_counter() - t0)
 
         t0 = time.perf_counter()
         status = np.full(len(kp.uv), POINT_UNUSED, np.uint8)
@@ -493,7 +494,7 @@ class VioEngine(StereoEngine):
             self._seed_tracks(k, kp, left)
             self._mflow = (obs.point_id, obs.point_uv)
         self._last_kf_tracked = int(np.count_nonzero(p_match >= 0)) if k > self.map.segment_start + 1 else len(obs.point_id)  # map points tracked (new ones are not yet)
-        timing["mapping"] = 1e3 * (time.perf_counter() - t0)
+        timing[Stage.MAPPING] = 1e3 * (time.perf_counter() - t0)
 
         # Monocular: the segmenter sees the left image only.
         images = (left, left) if use_planes and k > self.map.segment_start else None
@@ -508,10 +509,10 @@ class VioEngine(StereoEngine):
             t0 = time.perf_counter()
             self._line_seg_index = np.arange(len(obs.line_id))
             image = self._draw(left, kp, status, segments if use_lines else None, obs, masks, detection)
-            timing["image"] = 1e3 * (time.perf_counter() - t0)
-        total = 1e3 * (time.perf_counter() - t_start) - timing["load"] * frames_per
-        timing["total"] = total
-        timing["total_per_frame"] = total / frames_per
+            timing[Stage.IMAGE] = 1e3 * (time.perf_counter() - t0)
+        total = 1e3 * (time.perf_counter() - t_start) - timing[Stage.LOAD] * frames_per
+        timing[Stage.TOTAL] = total
+        timing[Stage.TOTAL_PER_FRAME] = total / frames_per
         tracking = Tracking(
             frames=frames,
             lost_frames=lost,

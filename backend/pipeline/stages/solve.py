@@ -13,6 +13,7 @@ from typing import Protocol
 
 import numpy as np
 
+from backend.common.timing import Stage
 from backend.mapping.map import Map
 from backend.mapping.window import Window, WindowSettings, assemble_window, write_back
 from backend.optim.problem import Problem, ProblemData, State, build_problem
@@ -101,26 +102,26 @@ def solve_window(
     )
     win = dataclasses.replace(win, data=extension.problem_data(win))
     problem = build_problem(win.data, variant, robust_px=s.cauchy)
-    timing["setup"] = 1e3 * (time.perf_counter() - t0)
+    timing[Stage.SETUP] = 1e3 * (time.perf_counter() - t0)
     assert win.data.fixed_poses is not None  # assemble_window always sets it
     free = ~win.data.fixed_poses
     if not np.any(free) or problem.layout.n_params == 0:  # a segment's first keyframe: nothing to solve
-        timing["optimization"] = timing["linearize"] = timing["solve"] = 0.0
+        timing[Stage.OPTIMIZATION] = timing[Stage.LINEARIZE] = timing[Stage.SOLVE] = 0.0
         report = OptimizationReport(variant, s.method, 0, 0.0, 0.0, True, problem.layout.n_items, problem.layout.n_params, int(free.sum()), int((~free).sum()), timing)
         return win, report, None
     state, rep = optimize(problem, method=s.method, max_iterations=s.max_iterations)
-    timing["optimization"] = rep.time_ms
-    timing["linearize"] = rep.linearize_ms
-    timing["solve"] = rep.solve_ms
+    timing[Stage.OPTIMIZATION] = rep.time_ms
+    timing[Stage.LINEARIZE] = rep.linearize_ms
+    timing[Stage.SOLVE] = rep.solve_ms
     t0 = time.perf_counter()
     write_back(the_map, win, problem, state, variant)
     extension.after_solve(win, problem, state)
-    timing["update"] = 1e3 * (time.perf_counter() - t0)
+    timing[Stage.UPDATE] = 1e3 * (time.perf_counter() - t0)
     hessian = None
     if s.hessian:
         t0 = time.perf_counter()
         hessian = hessian_structure(problem, state)
-        timing["hessian"] = 1e3 * (time.perf_counter() - t0)
+        timing[Stage.HESSIAN] = 1e3 * (time.perf_counter() - t0)
     report = OptimizationReport(
         variant=variant,
         method=s.method,
