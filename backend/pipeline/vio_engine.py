@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -63,15 +62,11 @@ from backend.frontend.flow import FlowTracks, follow
 from backend.frontend.lines import Segments, detect_segments, match_segments_temporal
 from backend.frontend.points import Keypoints, best_matches, pair_hamming
 from backend.frontend.segmentation import PlaneSegmenter
-from backend.geometry import line as line_geo
 from backend.geometry import so3
-from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, PreparedImuFactor, imu_factor, predict_state, preintegrate, preintegration_params
+from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, preintegration_params
 from backend.mapping.map import KeyframeObservations
 from backend.mapping.triangulation import triangulate_lines, triangulate_two_views
-from backend.mapping.window import Window
-from backend.optim import inertial
-from backend.optim.marginalization import marginalize, remap
-from backend.optim.problem import DistancePrior, ProblemData
+from backend.pipeline.imu_window import ImuModel, InertialState, InertialWindow, InertialWindowSettings
 from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
 from backend.pipeline.stages.solve import WindowExtension
 from backend.pipeline.stereo_engine import (
@@ -84,7 +79,8 @@ from backend.pipeline.stereo_engine import (
     _Tracked,
 )
 from backend.pipeline.tracking import merge_matches, pnp_ransac
-from backend.vio.alignment import Alignment, AlignmentSettings, align_visual_inertial
+from backend.pipeline.vio_start import StartContext, VioStart
+from backend.vio.alignment import AlignmentSettings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,6 +154,7 @@ class VioEngine(StereoEngine):
         self.imu_noise = source.imu_noise
         self.T_body_camera = source.T_body_rect0
         self.imu_params = preintegration_params(self.imu_noise)
+        self.imu_model = ImuModel(self.imu, self.imu_noise, self.T_body_camera, self.imu_params)
         if segmenter is None:
             from backend.frontend.segmentation_learned import LearnedSegmenter
 
@@ -169,15 +166,8 @@ class VioEngine(StereoEngine):
 
     STATE = (
         *StereoEngine.STATE,
-        "_vel",
-        "_bias",
-        "_imu_factors",
-        "_prior",
-        "_initialized",
-        "_init_status",
-        "_init_report",
-        "_init_keyframe",
-        "_first_init",
+        "inertial",
+        "start",
         "_kf_features",
         "_kf_segments",
         "_bootstrapping",
@@ -192,21 +182,13 @@ class VioEngine(StereoEngine):
         "_last_frame_ns",
         "_R_flow",
         "_imu_only_run",
-        "_marginalized_before",
     )
-    SHARED = (*StereoEngine.SHARED, "imu", "imu_noise", "T_body_camera", "imu_params")
+    SHARED = (*StereoEngine.SHARED, "imu", "imu_noise", "T_body_camera", "imu_params", "imu_model")
 
     def reset(self) -> None:
         super().reset()
-        self._vel = []  # per keyframe (3,) m/s, world
-        self._bias = []  # per keyframe (6,) (b_a, b_g)
-        self._imu_factors: dict[int, PreparedImuFactor] = {}  # k -> preintegration from keyframe k to k + 1
-        self._prior: inertial.LinearPrior | None = None  # global keyframe and plane indices
-        self._initialized = False
-        self._init_status = "structure from motion: waiting for parallax"
-        self._init_report: dict = {}
-        self._init_keyframe = -1
-        self._first_init: tuple[int, dict] = (-1, {})  # the first successful initialization and its figures
+        self.inertial = InertialState()  # velocities, biases, preintegrations, the prior (imu_window.py)
+        self.start = VioStart()  # how far the visual-inertial initialization got (vio_start.py)
         self._kf_features: dict[int, tuple[Keypoints, np.ndarray]] = {}
         self._kf_segments: dict[int, tuple[Segments, np.ndarray]] = {}
         self._bootstrapping = True  # no map in the segment yet: frames are matched with its first keyframe
@@ -221,7 +203,6 @@ class VioEngine(StereoEngine):
         self._last_frame_ns: int | None = None  # the last frame read
         self._R_flow: np.ndarray | None = None  # the camera's rotation since then, from the gyroscope
         self._imu_only_run = 0
-        self._marginalized_before = 0
 
     def step(self) -> Snapshot:
         s = self.settings
@@ -260,7 +241,7 @@ class VioEngine(StereoEngine):
                 tracked = self._track(i, kp)
                 reason = self._keyframe_reason(i, kp, tracked)
             timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
-            if not tracked.ok and self._initialized and self._imu_only_run < s.max_imu_only_keyframes:
+            if not tracked.ok and self.inertial.initialized and self._imu_only_run < s.max_imu_only_keyframes:
                 # The images alone lost the map (a fast turn): the IMU's prediction is the
                 # pose, and the frame becomes a keyframe so that new points are triangulated
                 # from it; the window's IMU factors keep it consistent.
@@ -299,14 +280,14 @@ class VioEngine(StereoEngine):
         self.map.segment_start = self.keyframes
         self._local_points = np.zeros(0, np.int64)
         self._local_lines = np.zeros(0, np.int64)
-        self._initialized = False
-        self._prior = None
+        self.inertial.initialized = False
+        self.inertial.prior = None
         self._bootstrapping = True
         self._ftracks, self._ftrack_image = FlowTracks.empty(), None
         self._mflow = (np.zeros(0, np.int64), np.zeros((0, 2)))
         self._lost_run = 0
-        self._init_status = "structure from motion: waiting for parallax (after a loss)"
-        self._marginalized_before = self.keyframes
+        self.start.status = "structure from motion: waiting for parallax (after a loss)"
+        self.inertial.marginalized_before = self.keyframes
 
     def _bootstrap(self, i: int, kp: Keypoints, image: np.ndarray):
         """Frame i against the segment's first keyframe, whose keypoints are followed frame to
@@ -401,8 +382,8 @@ class VioEngine(StereoEngine):
     def _gyro_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray:
         """Camera rotation `R_cam0_cam1` from the gyroscope between two times (the current
         gyro bias estimate; zero before the initialization)."""
-        bias = self._bias[-1] if self._bias else np.zeros(6)
-        pim = preintegrate(self.imu, t0_ns, t1_ns, bias_accel=bias[:3], bias_gyro=bias[3:], params=self.imu_params)
+        bias = self.inertial.bias[-1] if self.inertial.bias else np.zeros(6)
+        pim = self.imu_model.preintegrate(t0_ns, t1_ns, bias)
         R_bc = self.T_body_camera[:3, :3]
         return R_bc.T @ np.array(pim.deltaRij().matrix()) @ R_bc
 
@@ -411,27 +392,18 @@ class VioEngine(StereoEngine):
     def _predict(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """After the initialization: the IMU preintegrated from the last keyframe's state;
         before it: constant velocity (the stereo pipeline's model)."""
-        if not self._initialized:
+        if not self.inertial.initialized:
             return super()._predict(i)
         k = self.keyframes - 1
-        R, t, _ = self._imu_predict(k, int(self.data_source.timestamps_ns[i]))
+        R, t, _ = self.imu_model.predict(self.map, k, int(self.data_source.timestamps_ns[i]), self.inertial.velocity[k], self.inertial.bias[k])
         return R, t
-
-    def _imu_predict(self, k: int, t_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Camera pose and body velocity at `t_ns` from keyframe k's state and the IMU."""
-        R_bc, t_bc = self.T_body_camera[:3, :3], self.T_body_camera[:3, 3]
-        R_wb, t_wb, _ = inertial.body_poses(self.map.R_world_keyframe[k][None], self.map.t_world_keyframe[k][None], self.T_body_camera)
-        bias = self._bias[k]
-        pim = preintegrate(self.imu, int(self.map.keyframe_stamp_ns[k]), int(t_ns), bias_accel=bias[:3], bias_gyro=bias[3:], params=self.imu_params)
-        R_wb1, t_wb1, v1 = predict_state(pim, R_wb[0], t_wb[0], self._vel[k], bias=bias)
-        return R_wb1 @ R_bc, t_wb1 + R_wb1 @ t_bc, v1
 
     def _keyframe_reason(self, i: int, kp: Keypoints, tracked: _Tracked) -> str:
         s = self.settings
         if not tracked.ok:
             return ""
         k = self.keyframes - 1
-        interval = s.max_keyframe_interval_s if self._initialized else s.init_max_keyframe_interval_s
+        interval = s.max_keyframe_interval_s if self.inertial.initialized else s.init_max_keyframe_interval_s
         if (int(self.data_source.timestamps_ns[i]) - int(self.map.keyframe_stamp_ns[k])) * 1e-9 >= interval:
             return "IMU interval"
         if tracked.inliers < s.min_tracked_points:
@@ -484,13 +456,13 @@ class VioEngine(StereoEngine):
         if len(tracked.match) == len(local_p):
             status[tracked.match[tracked.match >= 0]] = POINT_OUTLIER
         self._add_keyframe(i, tracked.R, tracked.t)
-        self._add_inertial_state(k)
+        self.inertial.add_keyframe(self.map, k, self.imu_model)
         if k == self.map.segment_start:  # the start follows this keyframe's features frame to frame
             self._flow = (np.arange(len(kp.uv)), kp.uv.copy(), left)
         obs, new_points, new_lines = self._observe_mono(k, kp, local_p, p_match, segments, local_l, l_match, bootstrap)
         status[p_match[p_match >= 0]] = POINT_TRACKED
         status[self._new_point_kp] = POINT_NEW
-        if s.flow_tracks and not self._initialized:
+        if s.flow_tracks and not self.inertial.initialized:
             self._seed_tracks(k, kp, left)
             self._mflow = (obs.point_id, obs.point_uv)
         self._last_kf_tracked = int(np.count_nonzero(p_match >= 0)) if k > self.map.segment_start + 1 else len(obs.point_id)  # map points tracked (new ones are not yet)
@@ -499,8 +471,8 @@ class VioEngine(StereoEngine):
         # Monocular: the segmenter sees the left image only.
         images = (left, left) if use_planes and k > self.map.segment_start else None
         masks, detection, report, hessian = self._detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=images)
-        if not self._initialized:
-            self._try_initialize(k)
+        if not self.inertial.initialized:
+            self.start.try_initialize(k, StartContext(self.map, self.inertial, self.imu_model, self.data_source, self.settings, self._messages))
         if self._frame_poses:
             self._frame_poses[-1] = (i, self.map.R_world_keyframe[k].copy(), self.map.t_world_keyframe[k].copy())
 
@@ -523,23 +495,6 @@ class VioEngine(StereoEngine):
         )
         self._last = self._snapshot(k, detection, self._det_state, report, hessian, image=image, tracking=tracking, message="; ".join(self._messages))
         return self._last
-
-    def _add_inertial_state(self, k: int) -> None:
-        """Velocity and biases of the new keyframe (IMU prediction after the initialization)
-        and the preintegration from the previous keyframe."""
-        if k == self.map.segment_start or not self._initialized:
-            self._vel.append(np.zeros(3))
-            self._bias.append(self._bias[-1].copy() if self._bias else np.zeros(6))
-        else:
-            _, _, v = self._imu_predict(k - 1, int(self.map.keyframe_stamp_ns[k]))
-            self._vel.append(v)
-            self._bias.append(self._bias[k - 1].copy())
-        if k > self.map.segment_start:
-            self._imu_factors[k - 1] = self._preintegrate(k - 1)
-
-    def _preintegrate(self, k: int) -> PreparedImuFactor:
-        b = self._bias[k]
-        return imu_factor(preintegrate(self.imu, int(self.map.keyframe_stamp_ns[k]), int(self.map.keyframe_stamp_ns[k + 1]), bias_accel=b[:3], bias_gyro=b[3:], params=self.imu_params))
 
     def _observe_mono(
         self, k: int, kp: Keypoints, local_p: np.ndarray, p_match: np.ndarray, segments: Segments | None, local_l: np.ndarray, l_match: np.ndarray, bootstrap
@@ -669,7 +624,7 @@ class VioEngine(StereoEngine):
     def _flow_tracks_on(self) -> bool:
         """Whether candidate features are followed frame to frame: from the segment's first
         map until the initialization."""
-        return self.settings.flow_tracks and not self._initialized and not self._bootstrapping and self.keyframes > self.map.segment_start
+        return self.settings.flow_tracks and not self.inertial.initialized and not self._bootstrapping and self.keyframes > self.map.segment_start
 
     def _follow_tracks(self, image: np.ndarray, kp: Keypoints) -> Keypoints:
         """The map points seen in the last frame and the candidate features followed into
@@ -855,248 +810,14 @@ class VioEngine(StereoEngine):
 
     # ------------------------------------------------------------------ initialization
 
-    def _try_initialize(self, k: int) -> None:
-        """Visual-inertial alignment over the segment's keyframes so far (module docstring)."""
-        s = self.settings
-        first = max(self.map.segment_start, k + 1 - 2 * s.window)
-        kfs = np.arange(first, k + 1)
-        n_kf = len(kfs)
-        span = (int(self.map.keyframe_stamp_ns[k]) - int(self.map.keyframe_stamp_ns[first])) * 1e-9
-        if n_kf < s.init_keyframes or span < s.init_min_span_s:
-            self._init_status = f"structure from motion: {n_kf} keyframes over {span:.1f} s (alignment after {s.init_keyframes} keyframes over {s.init_min_span_s:.1f} s)"
-            return
-        R_v, t_v = self.map.R_world_keyframe[kfs], self.map.t_world_keyframe[kfs]
-        R_c0 = np.einsum("ji,njk->nik", R_v[0], R_v)
-        p_c0 = np.einsum("ji,nj->ni", R_v[0], t_v - t_v[0])
-        result: Alignment = align_visual_inertial(self.map.keyframe_stamp_ns[kfs], R_c0, p_c0, self.imu, T_body_cam0=self.T_body_camera, noise=self.imu_noise, settings=s.alignment)
-        self._init_report = {"keyframes": n_kf, "span_s": span, **result.to_dict()}
-        if not result.success:
-            self._init_status = f"alignment rejected at keyframe {k} ({n_kf} keyframes, {span:.1f} s): {result.reason}; retrying"
-            self._messages.append(self._init_status)
-            return
-        self._apply_alignment(kfs, result)
-        self._initialized = True
-        self._init_keyframe = k
-        truth = self._init_truth(kfs, result)
-        self._init_report.update(truth)
-        if self._first_init[0] < 0:
-            self._first_init = (k, dict(self._init_report))
-        self._init_status = f"initialized at keyframe {k} ({n_kf} keyframes, {span:.1f} s): scale {result.scale:.3f}, gyro bias {np.round(result.bias_gyro, 4).tolist()} rad/s"
-        self._messages.append(self._init_status)
-
-    def _apply_alignment(self, kfs: np.ndarray, result: Alignment) -> None:
-        """Scale and rotate the segment's map into the gravity-aligned world; velocities and
-        the gyro bias from the alignment; the gauge prior on the window's first keyframe."""
-        s = self.settings
-        k0 = int(kfs[0])
-        R_v0, t_v0 = self.map.R_world_keyframe[k0].copy(), self.map.t_world_keyframe[k0].copy()
-        R_w_c0 = result.R_world_c0
-        # Yaw and position of the first aligned keyframe from the ground truth where known
-        # (the gauge: unobservable, chosen so that estimate and truth are drawn together).
-        t_w_c0 = np.zeros(3)
-        i0 = int(self.map.keyframe_frame[k0])
-        if bool(self.data_source.ground_truth_valid[i0]):
-            T = self.data_source.T_world_rect0[i0]
-            R_gt = T[:3, :3]
-            M = R_gt @ (R_w_c0).T
-            yaw = np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1])
-            Rz = so3.exp(np.array([0.0, 0.0, yaw]))
-            R_w_c0 = Rz @ R_w_c0
-            t_w_c0 = T[:3, 3].copy()
-            vel_world = result.velocity_world @ Rz.T
-        else:
-            vel_world = result.velocity_world
-        scale = float(result.scale)
-
-        def to_world(p_v: np.ndarray) -> np.ndarray:
-            return scale * ((p_v - t_v0) @ R_v0) @ R_w_c0.T + t_w_c0
-
-        R_wv = R_w_c0 @ R_v0.T
-        seg = np.arange(self.map.segment_start, self.keyframes)
-        self.map.R_world_keyframe[seg] = np.einsum("ij,njk->nik", R_wv, self.map.R_world_keyframe[seg])
-        self.map.t_world_keyframe[seg] = to_world(self.map.t_world_keyframe[seg])
-        P, Lm = self.map.points, self.map.lines
-        pts = np.flatnonzero(P.anchor[:] >= self.map.segment_start)
-        P.p_world[pts] = to_world(P.p_world[pts])
-        lns = np.flatnonzero(Lm.anchor[:] >= self.map.segment_start)
-        if len(lns):
-            m_v, v_v = Lm.m[lns], Lm.v[lns]
-            p0 = np.cross(v_v, m_v)  # the line's point nearest the visual origin (|v| = 1)
-            a_w, b_w = to_world(p0), to_world(p0 + v_v)
-            m, v = line_geo.from_points(a_w, b_w)
-            norm = np.linalg.norm(v, axis=1, keepdims=True)
-            Lm.m[lns], Lm.v[lns] = m / norm, v / norm
-        used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[lns]]))
-        for q in used_planes[used_planes >= 0]:
-            n_v, d_v = self.map.planes.n[q], self.map.planes.d[q]
-            n_w = R_wv @ n_v
-            x_v = -d_v * n_v  # a point of the plane
-            self.map.planes.n[q], self.map.planes.d[q] = n_w, float(-n_w @ to_world(x_v[None])[0])
-        for j, kf in enumerate(kfs):
-            self._vel[kf] = vel_world[j].copy()
-            self._bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
-        for kf in range(self.map.segment_start, self.keyframes):
-            if kf not in set(kfs.tolist()):
-                self._bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
-        for kf in range(self.map.segment_start, self.keyframes - 1):
-            self._imu_factors[kf] = self._preintegrate(kf)
-        # Window: from here on the prior is the gauge; landmarks before the window are frozen.
-        w0 = max(self.map.segment_start, self.keyframes - s.window + 1)  # the next window's first keyframe
-        self._marginalized_before = w0
-        self._prior = self._gauge_prior(w0)
-
-    def _gauge_prior(self, k: int) -> inertial.LinearPrior:
-        """What the start knows about keyframe k: position and yaw (the gauge), roll and pitch
-        from the aligned gravity, velocity and biases (VioSettings' σ)."""
-        s = self.settings
-        R, t = self.map.R_world_keyframe[k], self.map.t_world_keyframe[k]
-        A = np.zeros((15, 15))
-        A[:3, :3] = np.diag([1 / s.gauge_sigma_tilt_rad, 1 / s.gauge_sigma_tilt_rad, 1 / s.gauge_sigma_yaw_rad]) @ R  # world-axis rotation errors
-        A[3:6, 3:6] = np.eye(3) / s.gauge_sigma_m
-        A[6:9, 6:9] = np.eye(3) / s.velocity_sigma
-        A[9:12, 9:12] = np.eye(3) / s.bias_sigma_accel
-        A[12:15, 12:15] = np.eye(3) / s.bias_sigma_gyro
-        return inertial.LinearPrior(
-            pose_index=np.array([k]),
-            inertial_index=np.array([k]),
-            plane_index=np.zeros(0, np.int64),
-            R=R[None].copy(),
-            t=t[None].copy(),
-            inertial=np.r_[self._vel[k], self._bias[k]][None],
-            plane_n=np.zeros((0, 3)),
-            plane_d=np.zeros(0),
-            A=A,
-            b=np.zeros(15),
-        )
-
-    def _init_truth(self, kfs: np.ndarray, result: Alignment) -> dict:
-        """The alignment against the truth where the source has it (rendered scenes)."""
-        out: dict = {}
-        src = self.data_source
-        if isinstance(src, RenderedTruth):
-            stamps = self.map.keyframe_stamp_ns[kfs]
-            imu_t = src.imu.timestamp_ns
-            at = np.clip(np.searchsorted(imu_t, stamps), 0, len(imu_t) - 1)
-            b_true = np.mean(src.bias_gyro[at], axis=0)
-            out["bias_gyro_true"] = b_true.tolist()
-            out["bias_gyro_error"] = float(np.linalg.norm(result.bias_gyro - b_true))
-            out["bias_gyro_error_pct"] = float(100.0 * np.linalg.norm(result.bias_gyro - b_true) / max(np.linalg.norm(b_true), 1e-12))
-        i0 = int(self.map.keyframe_frame[kfs[0]])
-        if bool(src.ground_truth_valid[i0]):
-            R_gt_c0 = src.T_world_rect0[i0][:3, :3]
-            g_true_c0 = R_gt_c0.T @ np.array([0.0, 0.0, -9.81])
-            g = result.gravity_c0
-            out["gravity_error_deg"] = float(np.degrees(np.arccos(np.clip(g @ g_true_c0 / (np.linalg.norm(g) * 9.81), -1.0, 1.0))))
-            # Scale: the visual baseline against the true one over the aligned keyframes.
-            t_gt = src.T_world_rect0[self.map.keyframe_frame[kfs]][:, :3, 3]
-            d_true = np.linalg.norm(t_gt[-1] - t_gt[0])
-            d_est = np.linalg.norm(self.map.t_world_keyframe[kfs[-1]] - self.map.t_world_keyframe[kfs[0]])
-            out["scale_error_pct"] = float(100.0 * (d_est - d_true) / max(d_true, 1e-12))
-        return out
-
     # ------------------------------------------------------------------ window (the inertial WindowExtension of stages.solve)
 
     def _window_range(self, k: int) -> tuple[int, int]:
-        s = self.settings
-        w0 = max(self.map.segment_start, k - s.window + 1)
-        if self._initialized:
-            w0 = max(w0, self._marginalized_before)
-            return w0, w0
-        return w0, max(self.map.segment_start, w0 - s.fixed_horizon)
+        return self.inertial.window_range(self.map, k, window=self.settings.window, fixed_horizon=self.settings.fixed_horizon)
 
     def _window_extension(self) -> WindowExtension:
-        return self
-
-    def keep_landmarks(self, w0: int) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None:
-        """After the initialization, landmarks marginalized with their anchor stay out."""
-        if not self._initialized:
-            return None
-        points, lines = self.map.points, self.map.lines
-        return lambda pts, lns: (pts[points.anchor[pts] >= w0], lns[lines.anchor[lns] >= w0])
-
-    def extra_planes(self) -> np.ndarray | None:
-        """The planes the marginalization prior holds."""
-        if self._initialized and self._prior is not None and len(self._prior.plane_index):
-            return self._prior.plane_index
-        return None
-
-    def fix_first_pose(self) -> bool:
-        """Before the initialization the first pose is the gauge; after it, the prior is."""
-        return not self._initialized
-
-    def problem_data(self, win: Window) -> ProblemData:
-        """Before the initialization the scale gauge; after it the IMU factors and the prior."""
-        data = win.data
-        kfs = win.kf
-        if not self._initialized:
-            # The monocular scale gauge before the IMU gives it: the distance of the segment's
-            # first two keyframes, where both are in the window.
-            k0 = self.map.segment_start
-            if k0 in kfs and k0 + 1 in kfs:
-                i, j = np.searchsorted(kfs, [k0, k0 + 1])
-                dist = float(np.linalg.norm(self.map.t_world_keyframe[k0 + 1] - self.map.t_world_keyframe[k0]))
-                data = dataclasses.replace(data, distance_prior=DistancePrior(np.array([i]), np.array([j]), np.array([dist]), 1e-4 * max(dist, 1e-6)))
-            return data
-        self._refresh_preintegrations(kfs)
-        n = len(kfs)
-        pose_map = np.full(self.keyframes, -1)
-        pose_map[kfs] = np.arange(n)
-        pairs = [(a, a + 1) for a in kfs[:-1] if a + 1 in set(kfs.tolist())]
-        imu_i = np.array([pose_map[a] for a, _ in pairs], np.int64)
-        imu_j = np.array([pose_map[b] for _, b in pairs], np.int64)
-        factors_ = tuple(self._imu_factors[a] for a, _ in pairs)
-        dt = np.array([(int(self.map.keyframe_stamp_ns[b]) - int(self.map.keyframe_stamp_ns[a])) * 1e-9 for a, b in pairs])
-        prior = None
-        if self._prior is not None:
-            plane_map = np.full(len(self.map.planes), -1)
-            plane_map[win.planes] = np.arange(len(win.planes))
-            prior = remap(self._prior, pose_map=pose_map, plane_map=plane_map)
-        ine = inertial.InertialData(
-            T_body_camera=self.T_body_camera,
-            velocity=np.array([self._vel[k] for k in kfs]),
-            bias=np.array([self._bias[k] for k in kfs]),
-            free=~data.fixed_poses,
-            imu_i=imu_i,
-            imu_j=imu_j,
-            imu=factors_,
-            dt_s=dt,
-            noise=self.imu_noise,
-            prior=prior,
-        )
-        return dataclasses.replace(data, inertial=ine)
-
-    def _refresh_preintegrations(self, kfs: np.ndarray) -> None:
-        """Re-preintegrate the intervals whose bias estimate moved beyond the first-order
-        correction's comfort (`rebias_accel`, `rebias_gyro`)."""
         s = self.settings
-        for a in kfs[:-1]:
-            f = self._imu_factors.get(int(a))
-            if f is None:
-                continue
-            hat = np.asarray(f.pim.biasHatVector()).ravel()
-            d = self._bias[a] - hat
-            if np.max(np.abs(d[:3])) > s.rebias_accel or np.max(np.abs(d[3:])) > s.rebias_gyro:
-                self._imu_factors[int(a)] = self._preintegrate(int(a))
-
-    def after_solve(self, win: Window, problem, state) -> None:
-        """Velocities and biases back from the solution; marginalize when the window is full."""
-        if not self._initialized or state.velocity is None:
-            return
-        free = ~win.data.fixed_poses
-        for j, k in enumerate(win.kf):
-            if free[j]:
-                self._vel[k] = state.velocity[j].copy()
-                self._bias[k] = state.bias[j].copy()
-        # Slide: when the window is full, marginalize its oldest keyframe and its landmarks.
-        if len(win.kf) >= self.settings.window:
-            oldest = int(win.kf[0])
-            p_local = np.flatnonzero(self.map.points.anchor[win.points] == oldest)
-            l_local = np.flatnonzero(self.map.lines.anchor[win.lines] == oldest)
-            prior = marginalize(problem, state, poses=np.array([0]), points=p_local, lines=l_local)
-            self._prior = (
-                None if prior is None else dataclasses.replace(prior, pose_index=win.kf[prior.pose_index], inertial_index=win.kf[prior.inertial_index], plane_index=win.planes[prior.plane_index])
-            )
-            self._marginalized_before = oldest + 1
+        return InertialWindow(self.inertial, self.map, self.imu_model, InertialWindowSettings(s.window, s.rebias_accel, s.rebias_gyro))
 
     # ------------------------------------------------------------------ snapshots
 
@@ -1105,8 +826,8 @@ class VioEngine(StereoEngine):
         return dataclasses.replace(snap, imu=self._imu_state(k))
 
     def _imu_state(self, k: int) -> ImuState:
-        vel = np.array(self._vel[: k + 1]).reshape(-1, 3)
-        bias = np.array(self._bias[: k + 1]).reshape(-1, 6)
+        vel = np.array(self.inertial.velocity[: k + 1]).reshape(-1, 3)
+        bias = np.array(self.inertial.bias[: k + 1]).reshape(-1, 6)
         truth_v = truth_b = None
         src = self.data_source
         if isinstance(src, RenderedTruth):
@@ -1115,15 +836,15 @@ class VioEngine(StereoEngine):
             at = np.clip(np.searchsorted(src.imu.timestamp_ns, self.map.keyframe_stamp_ns[: k + 1]), 0, len(src.imu.timestamp_ns) - 1)
             truth_b = np.concatenate([src.bias_accel[at], src.bias_gyro[at]], axis=1)
         return ImuState(
-            initialized=self._initialized,
-            status=self._init_status,
-            init_keyframe=self._init_keyframe,
-            report=dict(self._init_report),
-            first_init_keyframe=self._first_init[0],
-            first_report=dict(self._first_init[1]),
+            initialized=self.inertial.initialized,
+            status=self.start.status,
+            init_keyframe=self.start.keyframe,
+            report=dict(self.start.report),
+            first_init_keyframe=self.start.first[0],
+            first_report=dict(self.start.first[1]),
             velocity_world=frozen(vel),
             bias=frozen(bias),
-            gravity_world=frozen(np.array([0.0, 0.0, -9.81]) if self._initialized else np.full(3, np.nan)),
+            gravity_world=frozen(np.array([0.0, 0.0, -9.81]) if self.inertial.initialized else np.full(3, np.nan)),
             velocity_true=None if truth_v is None else frozen(truth_v),
             bias_true=None if truth_b is None else frozen(truth_b),
         )

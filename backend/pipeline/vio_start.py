@@ -1,0 +1,187 @@
+"""The start of VIO: the visual-inertial alignment (VINS-Mono's loosely coupled
+initialization, `backend.vio.alignment`) over the first keyframes of a map segment, and what
+it changes when it succeeds: the segment's map scaled and rotated into a gravity-aligned
+world, velocities and the gyroscope bias, the preintegrations, and the gauge prior of the
+first window with IMU factors. The start's state says how far it got (the snapshots show it).
+
+Frames and units: world z up, metres, seconds; keyframe ids are the map's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from backend.data.source import RenderedTruth, StereoSource
+from backend.geometry import line as line_geo
+from backend.geometry import so3
+from backend.mapping.map import Map
+from backend.optim import inertial
+from backend.pipeline.imu_window import ImuModel, InertialState
+from backend.vio.alignment import Alignment, align_visual_inertial
+
+
+@dataclasses.dataclass(frozen=True)
+class StartContext:
+    """What one initialization attempt works on: the map, the inertial state, the IMU model,
+    the input (its ground truth anchors the unobservable yaw and position, and rendered
+    inputs report the alignment's errors), the VIO settings and the step's messages."""
+
+    map: Map
+    inertial: InertialState
+    model: ImuModel
+    source: StereoSource
+    settings: Any  # VioSettings (backend.pipeline.vio_engine, which imports this module)
+    messages: list[str]
+
+
+@dataclasses.dataclass
+class VioStart:
+    """How far the start got: a status line, the last alignment's report and keyframe, and
+    the first successful initialization's keyframe and report (-1: none yet)."""
+
+    status: str = "structure from motion: waiting for parallax"
+    report: dict = dataclasses.field(default_factory=dict)
+    keyframe: int = -1
+    first: tuple[int, dict] = (-1, {})
+
+    def try_initialize(self, k: int, ctx: StartContext) -> None:
+        """Visual-inertial alignment over the segment's keyframes so far (module docstring)."""
+        s = ctx.settings
+        first = max(ctx.map.segment_start, k + 1 - 2 * s.window)
+        kfs = np.arange(first, k + 1)
+        n_kf = len(kfs)
+        span = (int(ctx.map.keyframe_stamp_ns[k]) - int(ctx.map.keyframe_stamp_ns[first])) * 1e-9
+        if n_kf < s.init_keyframes or span < s.init_min_span_s:
+            self.status = f"structure from motion: {n_kf} keyframes over {span:.1f} s (alignment after {s.init_keyframes} keyframes over {s.init_min_span_s:.1f} s)"
+            return
+        R_v, t_v = ctx.map.R_world_keyframe[kfs], ctx.map.t_world_keyframe[kfs]
+        R_c0 = np.einsum("ji,njk->nik", R_v[0], R_v)
+        p_c0 = np.einsum("ji,nj->ni", R_v[0], t_v - t_v[0])
+        result: Alignment = align_visual_inertial(ctx.map.keyframe_stamp_ns[kfs], R_c0, p_c0, ctx.model.imu, T_body_cam0=ctx.model.T_body_camera, noise=ctx.model.noise, settings=s.alignment)
+        self.report = {"keyframes": n_kf, "span_s": span, **result.to_dict()}
+        if not result.success:
+            self.status = f"alignment rejected at keyframe {k} ({n_kf} keyframes, {span:.1f} s): {result.reason}; retrying"
+            ctx.messages.append(self.status)
+            return
+        self._apply_alignment(kfs, result, ctx)
+        ctx.inertial.initialized = True
+        self.keyframe = k
+        truth = self._init_truth(kfs, result, ctx)
+        self.report.update(truth)
+        if self.first[0] < 0:
+            self.first = (k, dict(self.report))
+        self.status = f"initialized at keyframe {k} ({n_kf} keyframes, {span:.1f} s): scale {result.scale:.3f}, gyro bias {np.round(result.bias_gyro, 4).tolist()} rad/s"
+        ctx.messages.append(self.status)
+
+    def _apply_alignment(self, kfs: np.ndarray, result: Alignment, ctx: StartContext) -> None:
+        """Scale and rotate the segment's map into the gravity-aligned world; velocities and
+        the gyro bias from the alignment; the gauge prior on the window's first keyframe."""
+        s = ctx.settings
+        k0 = int(kfs[0])
+        R_v0, t_v0 = ctx.map.R_world_keyframe[k0].copy(), ctx.map.t_world_keyframe[k0].copy()
+        R_w_c0 = result.R_world_c0
+        # Yaw and position of the first aligned keyframe from the ground truth where known
+        # (the gauge: unobservable, chosen so that estimate and truth are drawn together).
+        t_w_c0 = np.zeros(3)
+        i0 = int(ctx.map.keyframe_frame[k0])
+        if bool(ctx.source.ground_truth_valid[i0]):
+            T = ctx.source.T_world_rect0[i0]
+            R_gt = T[:3, :3]
+            M = R_gt @ (R_w_c0).T
+            yaw = np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1])
+            Rz = so3.exp(np.array([0.0, 0.0, yaw]))
+            R_w_c0 = Rz @ R_w_c0
+            t_w_c0 = T[:3, 3].copy()
+            vel_world = result.velocity_world @ Rz.T
+        else:
+            vel_world = result.velocity_world
+        scale = float(result.scale)
+
+        def to_world(p_v: np.ndarray) -> np.ndarray:
+            return scale * ((p_v - t_v0) @ R_v0) @ R_w_c0.T + t_w_c0
+
+        R_wv = R_w_c0 @ R_v0.T
+        seg = np.arange(ctx.map.segment_start, len(ctx.map))
+        ctx.map.R_world_keyframe[seg] = np.einsum("ij,njk->nik", R_wv, ctx.map.R_world_keyframe[seg])
+        ctx.map.t_world_keyframe[seg] = to_world(ctx.map.t_world_keyframe[seg])
+        P, Lm = ctx.map.points, ctx.map.lines
+        pts = np.flatnonzero(P.anchor[:] >= ctx.map.segment_start)
+        P.p_world[pts] = to_world(P.p_world[pts])
+        lns = np.flatnonzero(Lm.anchor[:] >= ctx.map.segment_start)
+        if len(lns):
+            m_v, v_v = Lm.m[lns], Lm.v[lns]
+            p0 = np.cross(v_v, m_v)  # the line's point nearest the visual origin (|v| = 1)
+            a_w, b_w = to_world(p0), to_world(p0 + v_v)
+            m, v = line_geo.from_points(a_w, b_w)
+            norm = np.linalg.norm(v, axis=1, keepdims=True)
+            Lm.m[lns], Lm.v[lns] = m / norm, v / norm
+        used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[lns]]))
+        for q in used_planes[used_planes >= 0]:
+            n_v, d_v = ctx.map.planes.n[q], ctx.map.planes.d[q]
+            n_w = R_wv @ n_v
+            x_v = -d_v * n_v  # a point of the plane
+            ctx.map.planes.n[q], ctx.map.planes.d[q] = n_w, float(-n_w @ to_world(x_v[None])[0])
+        for j, kf in enumerate(kfs):
+            ctx.inertial.velocity[kf] = vel_world[j].copy()
+            ctx.inertial.bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
+        for kf in range(ctx.map.segment_start, len(ctx.map)):
+            if kf not in set(kfs.tolist()):
+                ctx.inertial.bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
+        for kf in range(ctx.map.segment_start, len(ctx.map) - 1):
+            ctx.inertial.factors[kf] = ctx.model.factor(ctx.map, kf, ctx.inertial.bias[kf])
+        # Window: from here on the prior is the gauge; landmarks before the window are frozen.
+        w0 = max(ctx.map.segment_start, len(ctx.map) - s.window + 1)  # the next window's first keyframe
+        ctx.inertial.marginalized_before = w0
+        ctx.inertial.prior = self._gauge_prior(w0, ctx)
+
+    def _gauge_prior(self, k: int, ctx: StartContext) -> inertial.LinearPrior:
+        """What the start knows about keyframe k: position and yaw (the gauge), roll and pitch
+        from the aligned gravity, velocity and biases (VioSettings' σ)."""
+        s = ctx.settings
+        R, t = ctx.map.R_world_keyframe[k], ctx.map.t_world_keyframe[k]
+        A = np.zeros((15, 15))
+        A[:3, :3] = np.diag([1 / s.gauge_sigma_tilt_rad, 1 / s.gauge_sigma_tilt_rad, 1 / s.gauge_sigma_yaw_rad]) @ R  # world-axis rotation errors
+        A[3:6, 3:6] = np.eye(3) / s.gauge_sigma_m
+        A[6:9, 6:9] = np.eye(3) / s.velocity_sigma
+        A[9:12, 9:12] = np.eye(3) / s.bias_sigma_accel
+        A[12:15, 12:15] = np.eye(3) / s.bias_sigma_gyro
+        return inertial.LinearPrior(
+            pose_index=np.array([k]),
+            inertial_index=np.array([k]),
+            plane_index=np.zeros(0, np.int64),
+            R=R[None].copy(),
+            t=t[None].copy(),
+            inertial=np.r_[ctx.inertial.velocity[k], ctx.inertial.bias[k]][None],
+            plane_n=np.zeros((0, 3)),
+            plane_d=np.zeros(0),
+            A=A,
+            b=np.zeros(15),
+        )
+
+    def _init_truth(self, kfs: np.ndarray, result: Alignment, ctx: StartContext) -> dict:
+        """The alignment against the truth where the source has it (rendered scenes)."""
+        out: dict = {}
+        src = ctx.source
+        if isinstance(src, RenderedTruth):
+            stamps = ctx.map.keyframe_stamp_ns[kfs]
+            imu_t = ctx.model.imu.timestamp_ns  # the source's own IMU samples
+            at = np.clip(np.searchsorted(imu_t, stamps), 0, len(imu_t) - 1)
+            b_true = np.mean(src.bias_gyro[at], axis=0)
+            out["bias_gyro_true"] = b_true.tolist()
+            out["bias_gyro_error"] = float(np.linalg.norm(result.bias_gyro - b_true))
+            out["bias_gyro_error_pct"] = float(100.0 * np.linalg.norm(result.bias_gyro - b_true) / max(float(np.linalg.norm(b_true)), 1e-12))
+        i0 = int(ctx.map.keyframe_frame[kfs[0]])
+        if bool(src.ground_truth_valid[i0]):
+            R_gt_c0 = src.T_world_rect0[i0][:3, :3]
+            g_true_c0 = R_gt_c0.T @ np.array([0.0, 0.0, -9.81])
+            g = result.gravity_c0
+            out["gravity_error_deg"] = float(np.degrees(np.arccos(np.clip(g @ g_true_c0 / (np.linalg.norm(g) * 9.81), -1.0, 1.0))))
+            # Scale: the visual baseline against the true one over the aligned keyframes.
+            t_gt = src.T_world_rect0[ctx.map.keyframe_frame[kfs]][:, :3, 3]
+            d_true = np.linalg.norm(t_gt[-1] - t_gt[0])
+            d_est = np.linalg.norm(ctx.map.t_world_keyframe[kfs[-1]] - ctx.map.t_world_keyframe[kfs[0]])
+            out["scale_error_pct"] = float(100.0 * (d_est - d_true) / max(float(d_true), 1e-12))
+        return out
