@@ -80,7 +80,7 @@ class RenderedTruth(Protocol):
     """The exact truth of a rendered scene (module docstring)."""
 
     plane_table: dict[int, np.ndarray]  # plane id -> (n, d)
-    trajectory: object  # continuous body trajectory: position, rotation, velocity at times (s)
+    trajectory: Any  # continuous body trajectory: position, rotation, velocity at times (s)
     bias_gyro: np.ndarray  # (M,) per IMU sample, rad/s
     bias_accel: np.ndarray  # (M,) per IMU sample, m/s²
 

@@ -702,7 +702,9 @@ class StereoEngine:
 
     # ------------------------------------------------------------------ snapshot
 
-    def _draw(self, left: np.ndarray, kp: Keypoints, status: np.ndarray, segs: StereoSegments | None, obs: KeyframeObservations, masks: PlaneMasks | None, detection: Detection) -> KeyframeImage:
+    def _draw(
+        self, left: np.ndarray, kp: Keypoints, status: np.ndarray, segs: StereoSegments | Segments | None, obs: KeyframeObservations, masks: PlaneMasks | None, detection: Detection
+    ) -> KeyframeImage:
         if segs is not None and len(self._line_seg_index):
             seg_uv = obs.line_uv.reshape(-1, 2, 2)
             seg_plane = np.where(self.map.lines.ok[obs.line_id], self.map.lines.plane[obs.line_id], -1)

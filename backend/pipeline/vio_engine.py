@@ -57,7 +57,7 @@ import numpy as np
 
 from backend.common.timing import PER_FRAME_STAGES, Stage
 from backend.data.motion import ImuData
-from backend.data.source import RenderedTruth
+from backend.data.source import InertialSource, RenderedTruth
 from backend.frontend.flow import FlowTracks, follow
 from backend.frontend.lines import Segments, detect_segments, match_segments_temporal
 from backend.frontend.points import Keypoints, best_matches, pair_hamming
@@ -148,6 +148,9 @@ class VioSettings(StereoSettings):
 
 class VioEngine(StereoEngine):
     """The VIO pipeline (module docstring; implements :class:`~backend.pipeline.engine.Engine`)."""
+
+    settings: VioSettings
+    data_source: InertialSource
 
     def __init__(self, source, *, settings: VioSettings = VioSettings(), name: str = "VIO sequence", segmenter: PlaneSegmenter | None = None, on_frame=None) -> None:
         self.imu: ImuData = source.imu  # DatasetError (one line) without imu0
@@ -319,13 +322,13 @@ class VioEngine(StereoEngine):
         if E is None or E.shape != (3, 3):
             return None
         _, R_10, t_10, inl = cv2.recoverPose(E, uv0, uv1, cam.K, mask=inl)
-        inl = inl.ravel() > 0
-        if inl.sum() < s.init_min_matches // 2:
+        inlier = inl.ravel() > 0
+        if inlier.sum() < s.init_min_matches // 2:
             return None
         # Parallax the best pure rotation leaves (the gyro's rotation carries its unknown bias,
         # which alone can make 15 px over half a second): a turn, or a sideways step in front
         # of one depth, has none, and its essential matrix gets the translation wrong.
-        if rotation_free_parallax_px(cam, uv0[inl], uv1[inl]) < s.init_rotation_free_parallax_px:
+        if rotation_free_parallax_px(cam, uv0[inlier], uv1[inlier]) < s.init_rotation_free_parallax_px:
             return None
         R_w0, t_w0 = self.map.R_world_keyframe[k0], self.map.t_world_keyframe[k0]
         R_01 = R_10.T  # camera 1 in camera 0
@@ -338,7 +341,7 @@ class VioEngine(StereoEngine):
         t_01 = -R_10.T @ t_10.ravel()
         Rs = np.stack([R_w0, R_w0 @ R_01])
         ts = np.stack([t_w0, t_w0 + R_w0 @ t_01])
-        sel = np.flatnonzero(inl)
+        sel = np.flatnonzero(inlier)
         pts = triangulate_two_views(cam.normalize(uv0[sel])[:, :2], cam.normalize(uv1[sel])[:, :2], Rs[0], ts[0], Rs[1], ts[1])
         z0 = (pts - ts[0]) @ Rs[0]
         z1 = (pts - ts[1]) @ Rs[1]
@@ -369,8 +372,8 @@ class VioEngine(StereoEngine):
         missing = np.flatnonzero(index < 0)
         if len(missing) == 0:
             return kp, index
-        orb = cv2.ORB_create(edgeThreshold=19, patchSize=31)
-        points = [cv2.KeyPoint(float(x), float(y), 31.0, -1.0, 0.0, 0, j) for j, (x, y) in zip(missing, uv[missing])]
+        orb = cv2.ORB_create(edgeThreshold=19, patchSize=31)  # type: ignore[attr-defined]  # not in OpenCV's stubs
+        points = [cv2.KeyPoint(float(x), float(y), 31.0, -1.0, 0.0, 0, int(j)) for j, (x, y) in zip(missing, uv[missing])]
         points, desc = orb.compute(image, points)
         if desc is None or len(points) == 0:
             return kp, index
