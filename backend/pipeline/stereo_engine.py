@@ -57,10 +57,9 @@ import numpy as np
 from backend.common.timing import PER_FRAME_STAGES, Stage
 from backend.data.source import StereoSource
 from backend.frontend.lines import LineSettings, Segments, StereoSegments, stereo_segments
-from backend.frontend.points import Keypoints, PointSettings, best_matches, detect_points, pair_hamming, stereo_points
+from backend.frontend.points import Keypoints, PointSettings, detect_points, stereo_points
 from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
 from backend.geometry import line as line_geo
-from backend.geometry import so3
 from backend.mapping import coplanar
 from backend.mapping.map import KeyframeObservations, Map
 from backend.mapping.window import Window, WindowSettings
@@ -83,7 +82,8 @@ from backend.pipeline.stages.culling import CullSettings, cull, local_map
 from backend.pipeline.stages.planes import FeatureStates, detect_planes, segment_keyframe
 from backend.pipeline.stages.snapshot import build_snapshot
 from backend.pipeline.stages.solve import SolveSettings, VisualWindow, WindowExtension, solve_window
-from backend.pipeline.tracking import match_by_projection, merge_matches, pixel_errors, refine_pose, relocalize
+from backend.pipeline.stages.track import Tracked, TrackSettings, extrapolate, kept_in_view_next, match_map_lines, track_frame
+from backend.pipeline.tracking import pixel_errors, refine_pose
 
 
 @dataclasses.dataclass(frozen=True)
@@ -245,7 +245,7 @@ class StereoEngine:
             t0 = time.perf_counter()
             if self.keyframes == 0:
                 R, t = self._initial_pose(i)
-                tracked = _Tracked(R, t, np.full(0, -1, np.int64), 0, True)
+                tracked = Tracked(R, t, np.full(0, -1, np.int64), 0, True)
                 reason = "first frame"
             else:
                 tracked = self._track(i, kp)
@@ -260,7 +260,7 @@ class StereoEngine:
                     self.map.segment_start = self.keyframes
                     self._local_points = np.zeros(0, np.int64)
                     self._local_lines = np.zeros(0, np.int64)
-                    tracked = _Tracked(tracked.R, tracked.t, np.zeros(0, np.int64), 0, True)
+                    tracked = Tracked(tracked.R, tracked.t, np.zeros(0, np.int64), 0, True)
                     messages.append(f"tracking lost at frame {i}: map re-initialized at the predicted pose")
                     reason = "re-initialization"
                 else:
@@ -343,85 +343,18 @@ class StereoEngine:
         if len(self._frame_poses) < 2:
             return R1, t1
         (j0, R0, t0) = self._frame_poses[-2]
-        return _extrapolate(R0, t0, R1, t1, (i - j1) / max(j1 - j0, 1))
+        return extrapolate(R0, t0, R1, t1, (i - j1) / max(j1 - j0, 1))
 
-    def _track(self, i: int, kp: Keypoints) -> _Tracked:
-        """Pose of frame i against the local map (module docstring)."""
+    def _track_settings(self) -> TrackSettings:
         s = self.settings
-        cam = self.camera
-        R, t = self._predict(i)
-        ids = self._local_points
-        if len(ids) == 0 or len(kp.uv) == 0:
-            return _Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
-        P, D = self.map.points.p_world[ids], self.map.points.desc[ids]
-        match = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
-        result = self._refine(R, t, P, D, kp, match)
-        if result.ok:
-            return result
-        # The motion model failed (a sudden change of motion). Candidates: a three times
-        # wider search around the prediction, the same around the last frame's pose, and
-        # PnP-RANSAC on the last keyframe's points and on the whole local map by descriptor.
-        # The one with the most inliers wins: in repeated texture a wide search or a subset
-        # of the map can agree on a wrong pose with enough inliers to pass.
-        candidates: list[tuple[_Tracked, str]] = []
-        priors = [(R, t, "")]
-        if len(self._frame_poses) == 2:  # (with one frame, the prediction is that frame's pose)
-            priors.append((self._frame_poses[-1][1], self._frame_poses[-1][2], "tracked from the last frame's pose (the motion model failed)"))
-        for R0, t0, how in priors:
-            match = match_by_projection(cam, R0, t0, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
-            candidates.append((self._refine(R0, t0, P, D, kp, match), how))
-        for what, subset in (("the last keyframe", self._last_keyframe_points()), ("the local map", np.arange(len(ids)))):
-            if len(subset) < s.min_tracking_inliers:
-                continue
-            reloc = relocalize(cam, P[subset], D[subset], kp.uv, kp.descriptors, max_hamming=s.max_hamming, ratio=s.match_ratio, min_inliers=s.min_tracking_inliers, seed=s.seed + i)
-            if reloc is not None:
-                match = np.full(len(ids), -1, np.int64)
-                match[subset] = reloc[2]
-                candidates.append((self._refine(reloc[0], reloc[1], P, D, kp, match, widen=True), f"relocalized by PnP against {what}"))
-        good = [c for c in candidates if c[0].ok]
-        if good:
-            best, how = max(good, key=lambda c: c[0].inliers)
-            if how:
-                self._messages.append(f"frame {i}: {how}")
-            return best
-        return _Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
+        return TrackSettings(s.search_radius_px, s.refine_radius_px, s.max_hamming, s.match_ratio, s.min_tracking_inliers, s.pixel_sigma, s.cauchy, s.outlier_px, s.seed)
 
-    def _last_keyframe_points(self) -> np.ndarray:
-        """Indices into the local map of the points the last keyframe observed."""
-        if not self.map.observations:
-            return np.zeros(0, np.int64)
-        seen = self.map.observations[self.keyframes - 1].point_id
-        return np.flatnonzero(np.isin(self._local_points, seen[self.map.points.ok[seen]]))
+    def _track(self, i: int, kp: Keypoints) -> Tracked:
+        """Pose of frame i against the local map (module docstring; stages/track.py)."""
+        last = (self._frame_poses[-1][1], self._frame_poses[-1][2]) if len(self._frame_poses) == 2 else None  # (one frame: the prediction is its pose)
+        return track_frame(self.camera, self._track_settings(), i, kp, the_map=self.map, local_points=self._local_points, predicted=self._predict(i), last_frame=last, messages=self._messages)
 
-    def _refine(
-        self, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, match: np.ndarray, *, widen: bool = False, min_inliers: int | None = None, keep_matches: bool = False
-    ) -> _Tracked:
-        """Refine from `match`; where that leaves fewer than twice the inliers needed (always
-        with `widen`: a pose from a subset of the map), search again around the refined pose
-        (`refine_radius_px`) and refine once more. `min_inliers`: what tracking needs (default
-        `min_tracking_inliers`); `keep_matches`: the search only adds matches for points that
-        have none (to keypoints not yet used) instead of replacing them."""
-        s = self.settings
-        cam = self.camera
-        need = s.min_tracking_inliers if min_inliers is None else min_inliers
-        for radius in (None, s.refine_radius_px):
-            if radius is not None:
-                if not widen and np.count_nonzero(match >= 0) >= 2 * s.min_tracking_inliers:
-                    break
-                found = match_by_projection(cam, R, t, P, D, kp.uv, kp.descriptors, radius_px=radius, max_hamming=s.max_hamming, ratio=s.match_ratio)
-                match = merge_matches(match, found, n_keypoints=len(kp.uv)) if keep_matches else found
-            m = np.flatnonzero(match >= 0)
-            if len(m) < need:
-                return _Tracked(R, t, match, 0, False)
-            ref = refine_pose(cam, R, t, P[m], kp.uv[match[m]], sigma_px=s.pixel_sigma, cauchy=s.cauchy)
-            R, t = ref.R_world_camera, ref.t_world_camera
-            err = pixel_errors(cam, R, t, P[m], kp.uv[match[m]])
-            match = match.copy()
-            match[m[~(err < s.outlier_px)]] = -1
-        inliers = int(np.count_nonzero(match >= 0))
-        return _Tracked(R, t, match, inliers, inliers >= need)
-
-    def _keyframe_reason(self, i: int, kp: Keypoints, tracked: _Tracked) -> str:
+    def _keyframe_reason(self, i: int, kp: Keypoints, tracked: Tracked) -> str:
         """Why frame i becomes a keyframe ("" if it does not)."""
         s = self.settings
         if not tracked.ok:
@@ -432,23 +365,10 @@ class StereoEngine:
             return "rule"
         if gap >= s.min_fallback_gap and tracked.inliers < s.fallback_tracked_ratio * self._last_kf_tracked:
             return "fallback"
-        if self._kept_in_view_next(i, tracked) < s.min_kept_in_view:
+        last = self._frame_poses[-1] if self._frame_poses else None
+        if kept_in_view_next(self.camera, s.min_depth_m, i, tracked, last_frame=last, the_map=self.map, local_points=self._local_points) < s.min_kept_in_view:
             return "fast motion"
         return ""
-
-    def _kept_in_view_next(self, i: int, tracked: _Tracked) -> float:
-        """Fraction of frame i's tracked map points that stay in the image (depth above
-        `min_depth_m`) at the next frame's pose as the constant-velocity model predicts it
-        from the previous frame and frame i. 1 without a previous frame."""
-        matched = np.flatnonzero(tracked.match >= 0)
-        if not self._frame_poses or len(matched) == 0:
-            return 1.0
-        j, R0, t0 = self._frame_poses[-1]
-        R_next, t_next = _extrapolate(R0, t0, tracked.R, tracked.t, 1.0 / max(i - j, 1))
-        p_cam = (self.map.points.p_world[self._local_points[matched]] - t_next) @ R_next
-        front = p_cam[:, 2] > self.settings.min_depth_m
-        uv = self.camera.project(p_cam[front])
-        return float(np.count_nonzero(self.camera.in_image(uv))) / len(matched)
 
     # ------------------------------------------------------------------ keyframes
 
@@ -458,7 +378,7 @@ class StereoEngine:
         left: np.ndarray,
         right: np.ndarray,
         kp: Keypoints,
-        tracked: _Tracked,
+        tracked: Tracked,
         timing: dict[str, float],
         t_start: float,
         *,
@@ -650,37 +570,8 @@ class StereoEngine:
         return obs, new_points, new_lines
 
     def _match_lines(self, R: np.ndarray, t: np.ndarray, ids: np.ndarray, segments: Segments) -> np.ndarray:
-        """Map lines `ids` to left segments of the keyframe at pose (R, t): the map line's
-        segment projected into the image must agree in direction (`max_angle_diff_deg`), the
-        detected endpoints lie within `line_search_px` of the projected line and overlap the
-        projected segment; then LBD Hamming distance with ratio test, one-to-one."""
         s = self.settings
-        out = np.full(len(ids), -1, np.int64)
-        if len(ids) == 0 or len(segments) == 0:
-            return out
-        seg_w = self.map.segments_world(ids)
-        p_cam = (seg_w - t) @ R
-        front = np.all(p_cam[..., 2] > s.min_depth_m, axis=1)
-        uv = np.full((len(ids), 2, 2), np.nan)
-        uv[front] = self.camera.project(p_cam[front])
-        a, b = uv[:, 0], uv[:, 1]
-        d = b - a
-        length = np.linalg.norm(d, axis=1)
-        ok = front & (length > 5.0)
-        dn = d / np.where(ok, length, 1.0)[:, None]
-        normal = np.stack([-dn[:, 1], dn[:, 0]], axis=1)
-        ds = segments.direction
-        cos = np.abs(dn @ ds.T)
-        dist_s = np.abs(np.einsum("ik,ijk->ij", normal, segments.start[None] - a[:, None]))
-        dist_e = np.abs(np.einsum("ik,ijk->ij", normal, segments.end[None] - a[:, None]))
-        t_mid = np.einsum("ik,ijk->ij", dn, segments.midpoint[None] - a[:, None]) / np.where(ok, length, 1.0)[:, None]
-        with np.errstate(invalid="ignore"):
-            allowed = ok[:, None] & (cos >= np.cos(np.radians(s.lines.max_angle_diff_deg))) & (np.maximum(dist_s, dist_e) < s.line_search_px) & (t_mid > -0.25) & (t_mid < 1.25)
-        rows, cols = np.nonzero(allowed)
-        if len(rows) == 0:
-            return out
-        dist = pair_hamming(self.map.lines.desc[ids[rows]], segments.descriptors[cols])
-        return best_matches(rows, cols, dist, n_rows=len(ids), max_distance=s.lines.max_hamming, ratio=s.lines.ratio)
+        return match_map_lines(self.map, R, t, ids, segments, min_depth_m=s.min_depth_m, line_search_px=s.line_search_px, settings=s.lines)
 
     # ------------------------------------------------------------------ window bundle adjustment
 
@@ -727,24 +618,3 @@ class StereoEngine:
     ) -> Snapshot:
         w0, _ = self._window_range(k)
         return build_snapshot(self.map, k, w0, detection, det_state, report, hessian, source=self._name, image=image, tracking=tracking, message=message)
-
-
-@dataclasses.dataclass(frozen=True)
-class _Tracked:
-    """A frame's pose, the keypoint matched to each local map point (-1: none), inliers."""
-
-    R: np.ndarray
-    t: np.ndarray
-    match: np.ndarray
-    inliers: int
-    ok: bool
-
-
-def _extrapolate(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray, steps: float) -> tuple[np.ndarray, np.ndarray]:
-    """The world pose `steps` times the motion from pose 0 to pose 1 beyond pose 1 (constant
-    velocity in the body frame). Through the rotation vector, projected back onto SO(3):
-    products of rotations extrapolated frame after frame would amplify rounding errors (no
-    longer rotations after a few hundred frames)."""
-    R_rel = so3.exp(steps * so3.log(R0.T @ R1))
-    t_rel = steps * (R0.T @ (t1 - t0))
-    return so3.project_to_so3(R1 @ R_rel), t1 + R1 @ t_rel

@@ -69,6 +69,7 @@ from backend.mapping.triangulation import triangulate_lines, triangulate_two_vie
 from backend.pipeline.imu_window import ImuModel, InertialState, InertialWindow, InertialWindowSettings
 from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
 from backend.pipeline.stages.solve import WindowExtension
+from backend.pipeline.stages.track import Tracked, refine
 from backend.pipeline.stereo_engine import (
     POINT_NEW,
     POINT_OUTLIER,
@@ -76,7 +77,6 @@ from backend.pipeline.stereo_engine import (
     POINT_UNUSED,
     StereoEngine,
     StereoSettings,
-    _Tracked,
 )
 from backend.pipeline.tracking import merge_matches, pnp_ransac
 from backend.pipeline.vio_start import StartContext, VioStart
@@ -226,7 +226,7 @@ class VioEngine(StereoEngine):
                 kp = self._follow_tracks(left, kp)
             if self.keyframes == self.map.segment_start:
                 R, t = self._initial_pose(i)
-                tracked, reason = _Tracked(R, t, np.full(0, -1, np.int64), 0, True), "first frame"
+                tracked, reason = Tracked(R, t, np.full(0, -1, np.int64), 0, True), "first frame"
             elif self._bootstrapping:
                 bootstrap = self._bootstrap(i, kp, left)
                 if bootstrap is None:
@@ -237,7 +237,7 @@ class VioEngine(StereoEngine):
                     self._restart_flow = False
                     self._start_segment()
                     R, t = self.map.R_world_keyframe[-1], self.map.t_world_keyframe[-1]
-                    tracked, reason = _Tracked(R.copy(), t.copy(), np.full(0, -1, np.int64), 0, True), "first frame"
+                    tracked, reason = Tracked(R.copy(), t.copy(), np.full(0, -1, np.int64), 0, True), "first frame"
                     break
                 tracked, reason, kp = bootstrap[0], "initial pair", bootstrap[4]
             else:
@@ -250,7 +250,7 @@ class VioEngine(StereoEngine):
                 # from it; the window's IMU factors keep it consistent.
                 self._imu_only_run += 1
                 messages.append(f"frame {i}: tracked by the IMU alone ({tracked.inliers} map points matched)")
-                tracked = _Tracked(tracked.R, tracked.t, tracked.match, tracked.inliers, True)
+                tracked = Tracked(tracked.R, tracked.t, tracked.match, tracked.inliers, True)
                 reason = "IMU only"
             elif tracked.ok and reason != "first frame":
                 self._imu_only_run = 0
@@ -263,7 +263,7 @@ class VioEngine(StereoEngine):
                     messages.append(f"tracking lost for {self._lost_run} frames at frame {i}: VIO starts again (new map segment)")
                     self._start_segment()
                     R, t = tracked.R, tracked.t
-                    tracked, reason = _Tracked(R, t, np.full(0, -1, np.int64), 0, True), "re-initialization"
+                    tracked, reason = Tracked(R, t, np.full(0, -1, np.int64), 0, True), "re-initialization"
                     break
                 continue
             self._lost_run = 0
@@ -356,7 +356,7 @@ class VioEngine(StereoEngine):
         # a new keypoint with its ORB descriptor computed at the followed pixel.
         kp, nearest = self._with_followed_keypoints(kp, uv1[sel], image)
         keep = nearest >= 0
-        tracked = _Tracked(Rs[1], t1, np.zeros(0, np.int64), int(keep.sum()), True)
+        tracked = Tracked(Rs[1], t1, np.zeros(0, np.int64), int(keep.sum()), True)
         return tracked, ids[sel][keep], nearest[keep], pts[good][keep], kp
 
     def _with_followed_keypoints(self, kp: Keypoints, uv: np.ndarray, image: np.ndarray, *, radius_px: float = 2.0) -> tuple[Keypoints, np.ndarray]:
@@ -401,7 +401,7 @@ class VioEngine(StereoEngine):
         R, t, _ = self.imu_model.predict(self.map, k, int(self.data_source.timestamps_ns[i]), self.inertial.velocity[k], self.inertial.bias[k])
         return R, t
 
-    def _keyframe_reason(self, i: int, kp: Keypoints, tracked: _Tracked) -> str:
+    def _keyframe_reason(self, i: int, kp: Keypoints, tracked: Tracked) -> str:
         s = self.settings
         if not tracked.ok:
             return ""
@@ -431,7 +431,7 @@ class VioEngine(StereoEngine):
     # ------------------------------------------------------------------ keyframes
 
     def _vio_keyframe(
-        self, i: int, left: np.ndarray, kp: Keypoints, tracked: _Tracked, timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, reason: str, bootstrap
+        self, i: int, left: np.ndarray, kp: Keypoints, tracked: Tracked, timing: dict[str, float], t_start: float, *, frames: int, lost: int, reinitializations: int, reason: str, bootstrap
     ) -> Snapshot:
         s = self.settings
         use_lines = self._variant.with_lines or not s.skip_unused_stages
@@ -646,11 +646,11 @@ class VioEngine(StereoEngine):
         self._ftrack_image = image
         return kp
 
-    def _track(self, i: int, kp: Keypoints) -> _Tracked:
+    def _track(self, i: int, kp: Keypoints) -> Tracked:
         """Before the initialization the map points followed from the last frame are matches
         too (the followed ones first, then those the projection search found for the others);
         otherwise the stereo pipeline's tracking."""
-        result = super()._track(i, kp)
+        result = super()._track(i, kp)  # the stereo pipeline's tracking (with this engine's prediction)
         ids, _ = self._mflow
         if not self._flow_tracks_on() or len(ids) == 0 or len(self._mflow_kp) != len(ids):
             return result
@@ -667,7 +667,7 @@ class VioEngine(StereoEngine):
         match[m[~pose[2]]] = -1
         if result.ok and len(result.match) == len(local):
             match = merge_matches(match, result.match, n_keypoints=len(kp.uv))
-        flowed = self._refine(pose[0], pose[1], P, self.map.points.desc[local], kp, match, min_inliers=need, keep_matches=True)
+        flowed = refine(self.camera, self._track_settings(), pose[0], pose[1], P, self.map.points.desc[local], kp, match, min_inliers=need, keep_matches=True)
         return flowed if flowed.ok and flowed.inliers >= result.inliers else result
 
     def _triangulate_tracks(self, k: int, kp: Keypoints, claimed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,214 @@
+"""Every frame: its pose against the local map (the stereo engine's module docstring tells
+the candidates tried when the motion model fails), and the stereo keyframe rule.
+
+Inputs are explicit: the map, the local map's point ids, the predicted pose and the last
+frame's. World frame z up, metres; pixels of `camera`."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from backend.frontend.lines import LineSettings, Segments
+from backend.frontend.points import Keypoints, best_matches, pair_hamming
+from backend.geometry import so3
+from backend.geometry.camera import PinholeCamera
+from backend.mapping.map import Map
+from backend.pipeline.tracking import match_by_projection, merge_matches, pixel_errors, refine_pose, relocalize
+
+
+@dataclasses.dataclass(frozen=True)
+class Tracked:
+    """A frame's pose, the keypoint matched to each local map point (-1: none), inliers."""
+
+    R: np.ndarray
+    t: np.ndarray
+    match: np.ndarray
+    inliers: int
+    ok: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackSettings:
+    """Projection search radius `search_radius_px` (then `refine_radius_px` around the
+    refined pose), ORB Hamming distance `<= max_hamming` and ratio `match_ratio`; a pose needs
+    `min_tracking_inliers` inliers; the refinement's `pixel_sigma` and Cauchy width `cauchy`
+    (px); matches off by more than `outlier_px` after it are dropped; `seed` for the RANSACs."""
+
+    search_radius_px: float
+    refine_radius_px: float
+    max_hamming: int
+    match_ratio: float
+    min_tracking_inliers: int
+    pixel_sigma: float
+    cauchy: float
+    outlier_px: float
+    seed: int
+
+
+def extrapolate(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray, steps: float) -> tuple[np.ndarray, np.ndarray]:
+    """The world pose `steps` times the motion from pose 0 to pose 1 beyond pose 1 (constant
+    velocity in the body frame). Through the rotation vector, projected back onto SO(3):
+    products of rotations extrapolated frame after frame would amplify rounding errors (no
+    longer rotations after a few hundred frames)."""
+    R_rel = so3.exp(steps * so3.log(R0.T @ R1))
+    t_rel = steps * (R0.T @ (t1 - t0))
+    return so3.project_to_so3(R1 @ R_rel), t1 + R1 @ t_rel
+
+
+def refine(
+    camera: PinholeCamera,
+    s: TrackSettings,
+    R: np.ndarray,
+    t: np.ndarray,
+    P: np.ndarray,
+    D: np.ndarray,
+    kp: Keypoints,
+    match: np.ndarray,
+    *,
+    widen: bool = False,
+    min_inliers: int | None = None,
+    keep_matches: bool = False,
+) -> Tracked:
+    """Refine from `match`; where that leaves fewer than twice the inliers needed (always
+    with `widen`: a pose from a subset of the map), search again around the refined pose
+    (`refine_radius_px`) and refine once more. `min_inliers`: what tracking needs (default
+    `min_tracking_inliers`); `keep_matches`: the search only adds matches for points that
+    have none (to keypoints not yet used) instead of replacing them."""
+    need = s.min_tracking_inliers if min_inliers is None else min_inliers
+    for radius in (None, s.refine_radius_px):
+        if radius is not None:
+            if not widen and np.count_nonzero(match >= 0) >= 2 * s.min_tracking_inliers:
+                break
+            found = match_by_projection(camera, R, t, P, D, kp.uv, kp.descriptors, radius_px=radius, max_hamming=s.max_hamming, ratio=s.match_ratio)
+            match = merge_matches(match, found, n_keypoints=len(kp.uv)) if keep_matches else found
+        m = np.flatnonzero(match >= 0)
+        if len(m) < need:
+            return Tracked(R, t, match, 0, False)
+        ref = refine_pose(camera, R, t, P[m], kp.uv[match[m]], sigma_px=s.pixel_sigma, cauchy=s.cauchy)
+        R, t = ref.R_world_camera, ref.t_world_camera
+        err = pixel_errors(camera, R, t, P[m], kp.uv[match[m]])
+        match = match.copy()
+        match[m[~(err < s.outlier_px)]] = -1
+    inliers = int(np.count_nonzero(match >= 0))
+    return Tracked(R, t, match, inliers, inliers >= need)
+
+
+def last_keyframe_points(the_map: Map, local_points: np.ndarray) -> np.ndarray:
+    """Indices into the local map of the points the last keyframe observed."""
+    if not the_map.observations:
+        return np.zeros(0, np.int64)
+    seen = the_map.observations[len(the_map) - 1].point_id
+    return np.flatnonzero(np.isin(local_points, seen[the_map.points.ok[seen]]))
+
+
+def track_frame(
+    camera: PinholeCamera,
+    s: TrackSettings,
+    i: int,
+    kp: Keypoints,
+    *,
+    the_map: Map,
+    local_points: np.ndarray,
+    predicted: tuple[np.ndarray, np.ndarray],
+    last_frame: tuple[np.ndarray, np.ndarray] | None,
+    messages: list[str],
+) -> Tracked:
+    """Pose of frame i against the local map, from the `predicted` pose; `last_frame`: the
+    last frame's pose where a motion model made the prediction (None: it is that pose).
+    A candidate other than the prediction that wins says how in `messages`."""
+    R, t = predicted
+    ids = local_points
+    if len(ids) == 0 or len(kp.uv) == 0:
+        return Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
+    P, D = the_map.points.p_world[ids], the_map.points.desc[ids]
+    match = match_by_projection(camera, R, t, P, D, kp.uv, kp.descriptors, radius_px=s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
+    result = refine(camera, s, R, t, P, D, kp, match)
+    if result.ok:
+        return result
+    # The motion model failed (a sudden change of motion). Candidates: a three times
+    # wider search around the prediction, the same around the last frame's pose, and
+    # PnP-RANSAC on the last keyframe's points and on the whole local map by descriptor.
+    # The one with the most inliers wins: in repeated texture a wide search or a subset
+    # of the map can agree on a wrong pose with enough inliers to pass.
+    candidates: list[tuple[Tracked, str]] = []
+    priors = [(R, t, "")]
+    if last_frame is not None:
+        priors.append((last_frame[0], last_frame[1], "tracked from the last frame's pose (the motion model failed)"))
+    for R0, t0, how in priors:
+        match = match_by_projection(camera, R0, t0, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
+        candidates.append((refine(camera, s, R0, t0, P, D, kp, match), how))
+    for what, subset in (("the last keyframe", last_keyframe_points(the_map, ids)), ("the local map", np.arange(len(ids)))):
+        if len(subset) < s.min_tracking_inliers:
+            continue
+        reloc = relocalize(camera, P[subset], D[subset], kp.uv, kp.descriptors, max_hamming=s.max_hamming, ratio=s.match_ratio, min_inliers=s.min_tracking_inliers, seed=s.seed + i)
+        if reloc is not None:
+            match = np.full(len(ids), -1, np.int64)
+            match[subset] = reloc[2]
+            candidates.append((refine(camera, s, reloc[0], reloc[1], P, D, kp, match, widen=True), f"relocalized by PnP against {what}"))
+    good = [c for c in candidates if c[0].ok]
+    if good:
+        best, how = max(good, key=lambda c: c[0].inliers)
+        if how:
+            messages.append(f"frame {i}: {how}")
+        return best
+    return Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
+
+
+def kept_in_view_next(
+    camera: PinholeCamera,
+    min_depth_m: float,
+    i: int,
+    tracked: Tracked,
+    *,
+    last_frame: tuple[int, np.ndarray, np.ndarray] | None,
+    the_map: Map,
+    local_points: np.ndarray,
+) -> float:
+    """Fraction of frame i's tracked map points that stay in the image (depth above
+    `min_depth_m`) at the next frame's pose as the constant-velocity model predicts it
+    from the previous frame (`last_frame`: index, R, t) and frame i. 1 without a previous
+    frame."""
+    matched = np.flatnonzero(tracked.match >= 0)
+    if last_frame is None or len(matched) == 0:
+        return 1.0
+    j, R0, t0 = last_frame
+    R_next, t_next = extrapolate(R0, t0, tracked.R, tracked.t, 1.0 / max(i - j, 1))
+    p_cam = (the_map.points.p_world[local_points[matched]] - t_next) @ R_next
+    front = p_cam[:, 2] > min_depth_m
+    uv = camera.project(p_cam[front])
+    return float(np.count_nonzero(camera.in_image(uv))) / len(matched)
+
+
+def match_map_lines(the_map: Map, R: np.ndarray, t: np.ndarray, ids: np.ndarray, segments: Segments, *, min_depth_m: float, line_search_px: float, settings: LineSettings) -> np.ndarray:
+    """Map lines `ids` to left segments of the keyframe at pose (R, t) (world, metres): the map line's
+    segment projected into the image must agree in direction (`max_angle_diff_deg`), the
+    detected endpoints lie within `line_search_px` of the projected line and overlap the
+    projected segment; then LBD Hamming distance with ratio test, one-to-one."""
+    out = np.full(len(ids), -1, np.int64)
+    if len(ids) == 0 or len(segments) == 0:
+        return out
+    seg_w = the_map.segments_world(ids)
+    p_cam = (seg_w - t) @ R
+    front = np.all(p_cam[..., 2] > min_depth_m, axis=1)
+    uv = np.full((len(ids), 2, 2), np.nan)
+    uv[front] = the_map.camera.project(p_cam[front])
+    a, b = uv[:, 0], uv[:, 1]
+    d = b - a
+    length = np.linalg.norm(d, axis=1)
+    ok = front & (length > 5.0)
+    dn = d / np.where(ok, length, 1.0)[:, None]
+    normal = np.stack([-dn[:, 1], dn[:, 0]], axis=1)
+    ds = segments.direction
+    cos = np.abs(dn @ ds.T)
+    dist_s = np.abs(np.einsum("ik,ijk->ij", normal, segments.start[None] - a[:, None]))
+    dist_e = np.abs(np.einsum("ik,ijk->ij", normal, segments.end[None] - a[:, None]))
+    t_mid = np.einsum("ik,ijk->ij", dn, segments.midpoint[None] - a[:, None]) / np.where(ok, length, 1.0)[:, None]
+    with np.errstate(invalid="ignore"):
+        allowed = ok[:, None] & (cos >= np.cos(np.radians(settings.max_angle_diff_deg))) & (np.maximum(dist_s, dist_e) < line_search_px) & (t_mid > -0.25) & (t_mid < 1.25)
+    rows, cols = np.nonzero(allowed)
+    if len(rows) == 0:
+        return out
+    dist = pair_hamming(the_map.lines.desc[ids[rows]], segments.descriptors[cols])
+    return best_matches(rows, cols, dist, n_rows=len(ids), max_distance=settings.max_hamming, ratio=settings.ratio)
