@@ -59,15 +59,16 @@ from backend.common.timing import PER_FRAME_STAGES, Stage
 from backend.data.motion import ImuData
 from backend.data.source import InertialSource, RenderedTruth
 from backend.frontend.flow import FlowTracks, follow
-from backend.frontend.lines import Segments, detect_segments, match_segments_temporal
-from backend.frontend.points import Keypoints, best_matches, pair_hamming
+from backend.frontend.lines import Segments, detect_segments
+from backend.frontend.points import Keypoints, best_matches
 from backend.frontend.segmentation import PlaneSegmenter
 from backend.geometry import so3
 from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, preintegration_params
 from backend.mapping.map import KeyframeObservations
-from backend.mapping.triangulation import triangulate_lines, triangulate_two_views
+from backend.mapping.triangulation import triangulate_two_views
 from backend.pipeline.imu_window import ImuModel, InertialState, InertialWindow, InertialWindowSettings
 from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
+from backend.pipeline.stages.mono import MonoSettings, add_two_view_lines, add_two_view_points, triangulate_matches, triangulate_pixels
 from backend.pipeline.stages.solve import WindowExtension
 from backend.pipeline.stages.track import Tracked, refine
 from backend.pipeline.stereo_engine import (
@@ -531,7 +532,7 @@ class VioEngine(StereoEngine):
                 if older not in self._kf_features:
                     break
                 kp_prev, claimed_prev = self._kf_features[older]
-                idx0, idx1, p_w = self._triangulate_new_points(older, k, kp_prev, np.flatnonzero(~claimed_prev), kp, np.flatnonzero(~claimed))
+                idx0, idx1, p_w = triangulate_matches(self.map, older, k, kp_prev, np.flatnonzero(~claimed_prev), kp, np.flatnonzero(~claimed), settings=self._mono_settings())
                 ids, fr = self._add_points(k, older, kp_prev, idx0, kp, idx1, p_w)
                 claimed[fr] = True
                 found_ids.append(ids)
@@ -559,7 +560,7 @@ class VioEngine(StereoEngine):
             fresh_l = np.zeros(0, np.int64)
             if k - 1 in self._kf_segments and k > self.map.segment_start:
                 prev, claimed_prev_l = self._kf_segments[k - 1]
-                new_lines, fresh_l = self._new_lines(k, prev, claimed_prev_l, segments, claimed_l)
+                new_lines, fresh_l = add_two_view_lines(self.map, k, prev, claimed_prev_l, segments, claimed_l, settings=self._mono_settings())
             claimed_l[fresh_l] = True
             self._kf_segments[k] = (segments, claimed_l)
             self._kf_segments.pop(k - 2, None)
@@ -568,59 +569,6 @@ class VioEngine(StereoEngine):
         obs = KeyframeObservations(point_id, kp.uv[point_kp], np.full(len(point_id), np.nan), line_id, line_uv, np.full((len(line_id), 4), np.nan))
         self.map.observations[k] = obs
         return obs, new_points, new_lines
-
-    def _triangulate_new_points(self, j: int, k: int, kp0: Keypoints, cand0: np.ndarray, kp1: Keypoints, cand1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Unclaimed keypoints of keyframes j < k matched by descriptor along the epipolar
-        lines of their relative pose, triangulated; returns keypoint indices in both and the
-        world points of those with parallax and positive depth."""
-        s = self.settings
-        cam = self.camera
-        empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)))
-        if len(cand0) == 0 or len(cand1) == 0:
-            return empty
-        R0, t0, R1, t1 = self.map.R_world_keyframe[j], self.map.t_world_keyframe[j], self.map.R_world_keyframe[k], self.map.t_world_keyframe[k]
-        R_10 = R1.T @ R0
-        t_10 = R1.T @ (t0 - t1)
-        if np.linalg.norm(t_10) < 1e-6:
-            return empty
-        E = so3.hat(t_10) @ R_10
-        x0 = cam.normalize(kp0.uv[cand0])
-        x1 = cam.normalize(kp1.uv[cand1])
-        lines = x0 @ E.T  # epipolar lines in image 1 (normalized)
-        num = np.abs(lines @ x1.T)
-        den = np.linalg.norm(lines[:, :2], axis=1, keepdims=True)
-        rows, cols = np.nonzero(num < (s.epipolar_px / cam.fx) * np.maximum(den, 1e-12))
-        dist = pair_hamming(kp0.descriptors[cand0[rows]], kp1.descriptors[cand1[cols]])
-        match = best_matches(rows, cols, dist, n_rows=len(cand0), max_distance=s.max_hamming, ratio=s.match_ratio)
-        a = np.flatnonzero(match >= 0)
-        if len(a) == 0:
-            return empty
-        i0, i1 = cand0[a], cand1[match[a]]
-        p_w, good = self._triangulate_pixels(j, k, kp0.uv[i0], kp1.uv[i1])
-        return i0[good], i1[good], p_w[good]
-
-    def _triangulate_pixels(self, j: int, k: int, uv0: np.ndarray, uv1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixels `uv0` of keyframe j and `uv1` (N, 2) of keyframe k triangulated (DLT) at
-        their estimated poses; returns the world points (N, 3) and which of them are in front
-        of both cameras within the depth limits, with at least `min_parallax_deg` and both
-        reprojection errors under `outlier_px`."""
-        s = self.settings
-        cam = self.camera
-        R0, t0, R1, t1 = self.map.R_world_keyframe[j], self.map.t_world_keyframe[j], self.map.R_world_keyframe[k], self.map.t_world_keyframe[k]
-        if len(uv0) == 0:
-            return np.zeros((0, 3)), np.zeros(0, bool)
-        p_w = triangulate_two_views(cam.normalize(uv0)[:, :2], cam.normalize(uv1)[:, :2], R0, t0, R1, t1)
-        z0 = np.einsum("ij,nj->ni", R0.T, p_w - t0)[:, 2]
-        z1 = np.einsum("ij,nj->ni", R1.T, p_w - t1)[:, 2]
-        ray0 = p_w - t0
-        ray1 = p_w - t1
-        cos = np.sum(ray0 * ray1, axis=1) / np.maximum(np.linalg.norm(ray0, axis=1) * np.linalg.norm(ray1, axis=1), 1e-12)
-        with np.errstate(invalid="ignore"):
-            good = np.all(np.isfinite(p_w), axis=1) & (z0 > s.min_depth_m) & (z1 > s.min_depth_m) & (z0 < s.max_depth_m) & (cos < np.cos(np.radians(s.min_parallax_deg)))
-            err0 = np.linalg.norm(cam.project((p_w - t0) @ R0) - uv0, axis=1)
-            err1 = np.linalg.norm(cam.project((p_w - t1) @ R1) - uv1, axis=1)
-            good &= (err0 < s.outlier_px) & (err1 < s.outlier_px)
-        return p_w, good
 
     # ------------------------------------------------------------------ followed features (before the initialization)
 
@@ -672,7 +620,7 @@ class VioEngine(StereoEngine):
 
     def _triangulate_tracks(self, k: int, kp: Keypoints, claimed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """New points from the followed features with parallax between the keyframe that
-        detected them and keyframe k (`_triangulate_pixels`); a feature whose keypoint is
+        detected them and keyframe k (`stages.mono.triangulate_pixels`); a feature whose keypoint is
         already claimed in either keyframe is left. Returns the new ids and their keypoint
         indices in keyframe k."""
         tr, j1 = self._ftracks, self._track_kp
@@ -685,11 +633,11 @@ class VioEngine(StereoEngine):
             c = cand[tr.anchor[cand] == k0]
             if k0 in self._kf_features:
                 c = c[~self._kf_features[k0][1][tr.anchor_kp[c]]]
-            p_w, good = self._triangulate_pixels(int(k0), k, tr.uv_anchor[c], kp.uv[j1[c]])
+            p_w, good = triangulate_pixels(self.map, int(k0), k, tr.uv_anchor[c], kp.uv[j1[c]], settings=self._mono_settings())
             c = c[good]
             if len(c) == 0:
                 continue
-            ids = self._new_points(k, int(k0), tr.uv_anchor[c], kp.descriptors[j1[c]], p_w[good])
+            ids = add_two_view_points(self.map, k, int(k0), tr.uv_anchor[c], kp.descriptors[j1[c]], p_w[good])
             if k0 in self._kf_features:
                 self._kf_features[k0][1][tr.anchor_kp[c]] = True
             found_ids.append(ids)
@@ -713,103 +661,19 @@ class VioEngine(StereoEngine):
         self._ftrack_image = image
         self._track_kp = np.zeros(0, np.int64)
 
+    def _mono_settings(self) -> MonoSettings:
+        s = self.settings
+        return MonoSettings(s.epipolar_px, s.max_hamming, s.match_ratio, s.min_depth_m, s.max_depth_m, s.min_parallax_deg, s.outlier_px, s.min_line_length_m, s.lines)
+
     def _add_points(self, k: int, k0: int, kp0: Keypoints, idx0: np.ndarray, kp1: Keypoints, idx1: np.ndarray, p_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """New points of keyframe k anchored in keyframe k0 (observed there and in keyframe
         k); appends their observation to keyframe k0's record. Returns their ids and keypoint
         indices in keyframe k."""
         if len(idx0) == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        ids = self._new_points(k, k0, kp0.uv[idx0], kp1.descriptors[idx1], p_world)
+        ids = add_two_view_points(self.map, k, k0, kp0.uv[idx0], kp1.descriptors[idx1], p_world)
         self._kf_features[k0][1][idx0] = True
         return ids, idx1
-
-    def _new_points(self, k: int, k0: int, uv0: np.ndarray, desc: np.ndarray, p_world: np.ndarray) -> np.ndarray:
-        """Points triangulated between keyframes k0 < k, anchored in k0 at pixels `uv0` (N, 2)
-        and observed in both; their re-observations are counted from keyframe k - 1 (as for a
-        pair with the previous keyframe, whatever k0). Returns their ids."""
-        n = len(uv0)
-        ids = self.map.points.add(
-            p_world=p_world,
-            ok=np.ones(n, bool),
-            anchor=np.full(n, k0),
-            anchor_uv=uv0,
-            anchor_ur=np.full(n, np.nan),
-            plane=np.full(n, -1),
-            desc=desc,
-            n_kf=np.full(n, 2, np.int64),
-            born=np.full(n, k - 1),
-        )
-        o = self.map.observations[k0]
-        self.map.observations[k0] = KeyframeObservations(
-            np.concatenate([o.point_id, ids]), np.concatenate([o.point_uv, uv0]), np.concatenate([o.point_ur, np.full(n, np.nan)]), o.line_id, o.line_uv, o.line_ruv
-        )
-        return ids
-
-    def _new_lines(self, k: int, prev: Segments, claimed_prev: np.ndarray, cur: Segments, claimed_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Lines from LBD matches between the unclaimed segments of keyframes k-1 and k,
-        triangulated from the two back-projection planes (at least `min_parallax_deg`
-        apart), with both endpoints in front of both cameras."""
-        s = self.settings
-        cam = self.camera
-        Lm = self.map.lines
-        a = np.flatnonzero(~claimed_prev)
-        b = np.flatnonzero(~claimed_cur)
-        empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
-        if len(a) == 0 or len(b) == 0:
-            return empty
-        wide = dataclasses.replace(s.lines, max_shift_px=max(s.lines.max_shift_px, 120.0))
-        sub = lambda seg, idx: Segments(seg.start[idx], seg.end[idx], seg.descriptors[idx])  # noqa: E731
-        pairs = match_segments_temporal(sub(prev, a), sub(cur, b), settings=wide)
-        if len(pairs) == 0:
-            return empty
-        ia, ib = a[pairs[:, 0]], b[pairs[:, 1]]
-        n = len(ia)
-        xs = np.concatenate([cam.normalize(prev.start[ia]), cam.normalize(cur.start[ib])])
-        xe = np.concatenate([cam.normalize(prev.end[ia]), cam.normalize(cur.end[ib])])
-        landmark = np.concatenate([np.arange(n), np.arange(n)])
-        pose = np.concatenate([np.zeros(n, np.int64), np.ones(n, np.int64)])
-        Rs = np.stack([self.map.R_world_keyframe[k - 1], self.map.R_world_keyframe[k]])
-        ts = np.stack([self.map.t_world_keyframe[k - 1], self.map.t_world_keyframe[k]])
-        m, v, spread = triangulate_lines(xs, xe, landmark, pose, n, Rs, ts)
-        norm = np.linalg.norm(v, axis=1)
-        good = (spread > np.sin(np.radians(s.min_parallax_deg))) & (norm > 1e-12)
-        m = m / np.maximum(norm, 1e-12)[:, None]
-        v = v / np.maximum(norm, 1e-12)[:, None]
-        # Endpoints: the line's points nearest the anchor (k-1) endpoint rays, in front of both cameras.
-        from backend.optim import factors
-
-        ends = []
-        for x in (cam.normalize(prev.start[ia]), cam.normalize(prev.end[ia])):
-            w = x @ Rs[0].T
-            p, _, _ = factors.line_point_nearest_ray(m, v, np.tile(ts[0], (n, 1)), w)
-            ends.append(p)
-        with np.errstate(invalid="ignore"):
-            for R, t in zip(Rs, ts):
-                for p in ends:
-                    z = (p - t) @ R[:, 2]
-                    good &= np.isfinite(z) & (z > s.min_depth_m) & (z < s.max_depth_m)
-            good &= np.linalg.norm(ends[1] - ends[0], axis=1) > s.min_line_length_m
-        sel = np.flatnonzero(good)
-        if len(sel) == 0:
-            return empty
-        uv_prev = np.concatenate([prev.start[ia[sel]], prev.end[ia[sel]]], axis=1)
-        ids = Lm.add(
-            m=m[sel],
-            v=v[sel],
-            ok=np.ones(len(sel), bool),
-            anchor=np.full(len(sel), k - 1),
-            anchor_uv=uv_prev,
-            anchor_ruv=np.full((len(sel), 4), np.nan),
-            plane=np.full(len(sel), -1),
-            desc=cur.descriptors[ib[sel]],
-            n_kf=np.full(len(sel), 2, np.int64),
-        )
-        o = self.map.observations[k - 1]
-        self.map.observations[k - 1] = KeyframeObservations(
-            o.point_id, o.point_uv, o.point_ur, np.concatenate([o.line_id, ids]), np.concatenate([o.line_uv, uv_prev]), np.concatenate([o.line_ruv, np.full((len(ids), 4), np.nan)])
-        )
-        claimed_prev[ia[sel]] = True
-        return ids, ib[sel]
 
     # ------------------------------------------------------------------ initialization
 
