@@ -77,7 +77,9 @@ class InertialSource(StereoSource, Protocol):
 
 @runtime_checkable
 class RenderedTruth(Protocol):
-    """The exact truth of a rendered scene (module docstring)."""
+    """The exact truth of a rendered scene (module docstring). `isinstance` asks a source for
+    every member here (in no fixed order), so none may be a property that raises on a
+    reader: an EuRoC folder's `imu`, without `imu0`, would (tested)."""
 
     plane_table: dict[int, np.ndarray]  # plane id -> (n, d)
     trajectory: Any  # continuous body trajectory: position, rotation, velocity at times (s)

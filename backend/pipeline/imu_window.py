@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from backend.data.motion import ImuData, ImuNoise
-from backend.imu.preintegration import PreparedImuFactor, imu_factor, predict_state, preintegrate
+from backend.data.source import InertialSource
+from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, PreparedImuFactor, imu_factor, predict_state, preintegrate
 from backend.mapping.map import Map
 from backend.mapping.window import Window
 from backend.optim import inertial
@@ -203,3 +204,20 @@ class InertialWindow:
                 else dataclasses.replace(prior, pose_index=window.kf[prior.pose_index], inertial_index=window.kf[prior.inertial_index], plane_index=window.planes[prior.plane_index])
             )
             st.marginalized_before = oldest + 1
+
+
+def check_imu_coverage(imu: ImuData, source: InertialSource) -> None:
+    """The IMU must cover the frames with no gap longer than a frame interval."""
+    from backend.data.errors import DatasetError
+
+    stamps = imu.timestamp_ns
+    frames = np.asarray(source.timestamps_ns, dtype=np.int64)
+    label = source.imu_label
+    if len(stamps) < 2 or stamps[0] > frames[0] or stamps[-1] + DEFAULT_MAX_GAP_NS < frames[-1]:
+        raise DatasetError(label, f"the IMU samples ({len(stamps)}) do not cover the camera frames")
+    period = np.min(np.diff(frames)) if len(frames) > 1 else 0
+    inside = (stamps >= frames[0]) & (stamps <= frames[-1])
+    gaps = np.diff(stamps[inside]) if inside.sum() > 1 else np.zeros(0)
+    if len(gaps) and period and gaps.max() > period:
+        j = int(np.argmax(gaps))
+        raise DatasetError(label, f"IMU gap of {gaps[j] * 1e-6:.1f} ms after {stamps[inside][j]} ns, longer than a frame interval ({period * 1e-6:.1f} ms)")

@@ -57,17 +57,17 @@ import numpy as np
 
 from backend.common.timing import PER_FRAME_STAGES, Stage
 from backend.data.motion import ImuData
-from backend.data.source import InertialSource, RenderedTruth
+from backend.data.source import InertialSource
 from backend.frontend.flow import FlowTracks, follow
 from backend.frontend.lines import Segments, detect_segments
 from backend.frontend.points import Keypoints, best_matches
 from backend.frontend.segmentation import PlaneSegmenter
 from backend.geometry import so3
-from backend.imu.preintegration import DEFAULT_MAX_GAP_NS, preintegration_params
+from backend.imu.preintegration import preintegration_params
 from backend.mapping.map import KeyframeObservations
 from backend.mapping.triangulation import triangulate_two_views
-from backend.pipeline.imu_window import ImuModel, InertialState, InertialWindow, InertialWindowSettings
-from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking, frozen
+from backend.pipeline.imu_window import ImuModel, InertialState, InertialWindow, InertialWindowSettings, check_imu_coverage
+from backend.pipeline.snapshot import Detection, ImuState, Snapshot, Tracking
 from backend.pipeline.stages.mono import MonoSettings, add_two_view_lines, add_two_view_points, triangulate_matches, triangulate_pixels
 from backend.pipeline.stages.solve import WindowExtension
 from backend.pipeline.stages.track import Tracked, refine
@@ -80,7 +80,7 @@ from backend.pipeline.stereo_engine import (
     StereoSettings,
 )
 from backend.pipeline.tracking import merge_matches, pnp_ransac
-from backend.pipeline.vio_start import StartContext, VioStart
+from backend.pipeline.vio_start import StartContext, VioStart, imu_state
 from backend.vio.alignment import AlignmentSettings
 
 
@@ -693,44 +693,10 @@ class VioEngine(StereoEngine):
         return dataclasses.replace(snap, imu=self._imu_state(k))
 
     def _imu_state(self, k: int) -> ImuState:
-        vel = np.array(self.inertial.velocity[: k + 1]).reshape(-1, 3)
-        bias = np.array(self.inertial.bias[: k + 1]).reshape(-1, 6)
-        truth_v = truth_b = None
-        src = self.data_source
-        if isinstance(src, RenderedTruth):
-            t = self.map.keyframe_stamp_ns[: k + 1] * 1e-9
-            truth_v = src.trajectory.velocity(t)
-            at = np.clip(np.searchsorted(src.imu.timestamp_ns, self.map.keyframe_stamp_ns[: k + 1]), 0, len(src.imu.timestamp_ns) - 1)
-            truth_b = np.concatenate([src.bias_accel[at], src.bias_gyro[at]], axis=1)
-        return ImuState(
-            initialized=self.inertial.initialized,
-            status=self.start.status,
-            init_keyframe=self.start.keyframe,
-            report=dict(self.start.report),
-            first_init_keyframe=self.start.first[0],
-            first_report=dict(self.start.first[1]),
-            velocity_world=frozen(vel),
-            bias=frozen(bias),
-            gravity_world=frozen(np.array([0.0, 0.0, -9.81]) if self.inertial.initialized else np.full(3, np.nan)),
-            velocity_true=None if truth_v is None else frozen(truth_v),
-            bias_true=None if truth_b is None else frozen(truth_b),
-        )
+        return imu_state(self.map, k, self.inertial, self.start, self.data_source, self.imu.timestamp_ns)
 
     def _check_imu_coverage(self) -> None:
-        """The IMU must cover the frames with no gap longer than a frame interval."""
-        from backend.data.errors import DatasetError
-
-        stamps = self.imu.timestamp_ns
-        frames = np.asarray(self.data_source.timestamps_ns, dtype=np.int64)
-        label = self.data_source.imu_label
-        if len(stamps) < 2 or stamps[0] > frames[0] or stamps[-1] + DEFAULT_MAX_GAP_NS < frames[-1]:
-            raise DatasetError(label, f"the IMU samples ({len(stamps)}) do not cover the camera frames")
-        period = np.min(np.diff(frames)) if len(frames) > 1 else 0
-        inside = (stamps >= frames[0]) & (stamps <= frames[-1])
-        gaps = np.diff(stamps[inside]) if inside.sum() > 1 else np.zeros(0)
-        if len(gaps) and period and gaps.max() > period:
-            j = int(np.argmax(gaps))
-            raise DatasetError(label, f"IMU gap of {gaps[j] * 1e-6:.1f} ms after {stamps[inside][j]} ns, longer than a frame interval ({period * 1e-6:.1f} ms)")
+        check_imu_coverage(self.imu, self.data_source)
 
 
 def rotation_free_parallax_px(camera, uv0: np.ndarray, uv1: np.ndarray) -> float:

@@ -20,6 +20,7 @@ from backend.geometry import so3
 from backend.mapping.map import Map
 from backend.optim import inertial
 from backend.pipeline.imu_window import ImuModel, InertialState
+from backend.pipeline.snapshot import ImuState, frozen
 from backend.vio.alignment import Alignment, align_visual_inertial
 
 
@@ -185,3 +186,31 @@ class VioStart:
             d_est = np.linalg.norm(ctx.map.t_world_keyframe[kfs[-1]] - ctx.map.t_world_keyframe[kfs[0]])
             out["scale_error_pct"] = float(100.0 * (d_est - d_true) / max(float(d_true), 1e-12))
         return out
+
+
+def imu_state(the_map: Map, k: int, state: InertialState, start: VioStart, source: object, imu_stamps_ns: np.ndarray) -> ImuState:
+    """The snapshot's IMU part at keyframe k: how far the start got, the keyframes'
+    velocities and biases, and on rendered inputs their true values (the biases per IMU
+    sample, at `imu_stamps_ns`)."""
+    vel = np.array(state.velocity[: k + 1]).reshape(-1, 3)
+    bias = np.array(state.bias[: k + 1]).reshape(-1, 6)
+    truth_v = truth_b = None
+    src = source
+    if isinstance(src, RenderedTruth):
+        t = the_map.keyframe_stamp_ns[: k + 1] * 1e-9
+        truth_v = src.trajectory.velocity(t)
+        at = np.clip(np.searchsorted(imu_stamps_ns, the_map.keyframe_stamp_ns[: k + 1]), 0, len(imu_stamps_ns) - 1)
+        truth_b = np.concatenate([src.bias_accel[at], src.bias_gyro[at]], axis=1)
+    return ImuState(
+        initialized=state.initialized,
+        status=start.status,
+        init_keyframe=start.keyframe,
+        report=dict(start.report),
+        first_init_keyframe=start.first[0],
+        first_report=dict(start.first[1]),
+        velocity_world=frozen(vel),
+        bias=frozen(bias),
+        gravity_world=frozen(np.array([0.0, 0.0, -9.81]) if state.initialized else np.full(3, np.nan)),
+        velocity_true=None if truth_v is None else frozen(truth_v),
+        bias_true=None if truth_b is None else frozen(truth_b),
+    )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pathlib
+import typing
 
 import numpy as np
 import pytest
@@ -64,6 +65,11 @@ def test_every_format_is_named_and_the_euroc_reader_comes_first() -> None:
 def test_the_real_mh01_slice_opens_as_euroc_without_an_imu() -> None:
     source = open_dataset(SHARED / "euroc_mh01_slice")
     assert isinstance(source, StereoSource) and len(source) == 300 and not source.has_imu  # type: ignore[attr-defined]
+    # isinstance asks for every protocol member in no fixed order: none may raise here.
+    for protocol in (StereoSource, RenderedTruth):
+        for name in protocol.__protocol_attrs__ if hasattr(protocol, "__protocol_attrs__") else typing._get_protocol_attrs(protocol):  # type: ignore[attr-defined]
+            hasattr(source, name)
+    assert not isinstance(source, RenderedTruth)
     with pytest.raises(DatasetError, match="imu0"):
         source.imu_noise  # type: ignore[attr-defined]  # noqa: B018
 
