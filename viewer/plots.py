@@ -114,15 +114,16 @@ def plots_png(snapshots: list[Snapshot], *, current: int | None) -> bytes:
         ax.yaxis.label.set_size(8)
     if inertial:
         ax = axes[5]
-        with_imu = [s for s in snapshots if s.imu is not None]
-        xs = np.array([s.keyframe for s in with_imu], dtype=float)
-        speed = np.array([np.linalg.norm(s.imu.velocity_world[-1]) if s.imu.initialized else np.nan for s in with_imu])
+        with_imu = [(s.keyframe, s.imu) for s in snapshots if s.imu is not None]
+        xs = np.array([keyframe for keyframe, _ in with_imu], dtype=float)
+        speed = np.array([np.linalg.norm(imu.velocity_world[-1]) if imu.initialized else np.nan for _, imu in with_imu])
         ax.plot(xs, speed, label="speed", **style)
-        if all(s.imu.velocity_true is not None for s in with_imu):
-            ax.plot(xs, [np.linalg.norm(s.imu.velocity_true[-1]) for s in with_imu], label="true speed", linestyle="--", linewidth=1.0)
+        velocity_true = [imu.velocity_true for _, imu in with_imu if imu.velocity_true is not None]
+        if len(velocity_true) == len(with_imu):  # the truth is known at every keyframe
+            ax.plot(xs, [np.linalg.norm(v[-1]) for v in velocity_true], label="true speed", linestyle="--", linewidth=1.0)
         ax.set_ylabel("speed (m/s)")
         twin = twins[5] = ax.twinx()
-        bg = np.array([1e3 * np.linalg.norm(s.imu.bias[-1][3:]) for s in with_imu])
+        bg = np.array([1e3 * np.linalg.norm(imu.bias[-1][3:]) for _, imu in with_imu])
         twin.plot(xs, bg, color="tab:green", linewidth=1.0, label="|gyro bias| (mrad/s)")
         twin.set_ylabel("gyro bias (mrad/s)", color="tab:green")
     for i, ax in enumerate(axes[:4] + axes[5:]):

@@ -300,7 +300,7 @@ def render_view(
     for cyl in scene.cylinders:
         _draw_cylinder(view, cyl, camera, R_camera_world, t_world_camera, clip)
     if gain != 1.0 or blur_sigma_px > 0 or noise_sigma > 0:
-        image = view.image.astype(np.float32)
+        image: np.ndarray = view.image.astype(np.float32)  # float32 throughout (OpenCV's stubs type the blur's result as any numeric array)
         if gain != 1.0:
             image *= np.float32(gain)
         if blur_sigma_px > 0:
@@ -346,8 +346,7 @@ def render_stereo(
     """Left and right views of a rectified stereo pair (`camera.baseline` metres apart
     along the left camera's x axis), same intrinsics and image effects (noise drawn for the
     left image first)."""
-    options = dict(gain=gain, blur_sigma_px=blur_sigma_px, noise_sigma=noise_sigma, rng=rng)
-    left = render_view(scene, camera, R_world_left, t_world_left, **options)
+    left = render_view(scene, camera, R_world_left, t_world_left, gain=gain, blur_sigma_px=blur_sigma_px, noise_sigma=noise_sigma, rng=rng)
     R_world_right, t_world_right = right_camera_pose(camera, R_world_left, t_world_left)
-    right = render_view(scene, camera, R_world_right, t_world_right, **options)
+    right = render_view(scene, camera, R_world_right, t_world_right, gain=gain, blur_sigma_px=blur_sigma_px, noise_sigma=noise_sigma, rng=rng)
     return left, right

@@ -7,13 +7,23 @@ way, and until the initialization it follows the candidate features of later key
 from __future__ import annotations
 
 import dataclasses
+from typing import TypedDict
 
 import cv2
 import numpy as np
 
 from backend.geometry.camera import PinholeCamera
 
-_LK = dict(winSize=(21, 21), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+
+class _LkParams(TypedDict):
+    """The pyramidal Lucas-Kanade settings, typed so that `**_LK` meets OpenCV's keywords."""
+
+    winSize: tuple[int, int]
+    maxLevel: int
+    criteria: tuple[int, int, float]
+
+
+_LK: _LkParams = dict(winSize=(21, 21), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
 
 
 def follow(image_prev: np.ndarray, image: np.ndarray, uv_prev: np.ndarray, camera: PinholeCamera, *, R_prev_cur: np.ndarray | None = None, max_back_px: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
@@ -28,7 +38,7 @@ def follow(image_prev: np.ndarray, image: np.ndarray, uv_prev: np.ndarray, camer
         return np.zeros((0, 2)), np.zeros(0, bool)
     p0 = uv_prev.astype(np.float32).reshape(-1, 1, 2)
     if R_prev_cur is None:
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, None, **_LK)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, None, **_LK)  # type: ignore[call-overload]  # OpenCV's stubs: nextPts may be None (an output)
     else:
         rays = camera.normalize(uv_prev) @ R_prev_cur
         ahead = rays[:, 2] > 0.1

@@ -76,7 +76,17 @@ def point_world_on_plane(
     p_world = np.empty((P, 3))
     J = np.empty((P, 3, 9))
     h = np.empty(P)
-    kernels.point_on_plane(*(np.ascontiguousarray(a, dtype=float) for a in (x_anchor, n_world, d_world, B_plane, R_world_anchor, t_world_anchor)), p_world, J, h)
+    kernels.point_on_plane(
+        np.ascontiguousarray(x_anchor, dtype=float),
+        np.ascontiguousarray(n_world, dtype=float),
+        np.ascontiguousarray(d_world, dtype=float),
+        np.ascontiguousarray(B_plane, dtype=float),
+        np.ascontiguousarray(R_world_anchor, dtype=float),
+        np.ascontiguousarray(t_world_anchor, dtype=float),
+        p_world,
+        J,
+        h,
+    )
     return p_world, J, h
 
 
@@ -167,7 +177,17 @@ def line_world_on_plane(
     m = np.empty((L, 3))
     v = np.empty((L, 3))
     J = np.empty((L, 6, 9))
-    kernels.line_on_plane(*(np.ascontiguousarray(a, dtype=float) for a in (n_backprojection_anchor, n_world, d_world, B_plane, R_world_anchor, t_world_anchor)), m, v, J)
+    kernels.line_on_plane(
+        np.ascontiguousarray(n_backprojection_anchor, dtype=float),
+        np.ascontiguousarray(n_world, dtype=float),
+        np.ascontiguousarray(d_world, dtype=float),
+        np.ascontiguousarray(B_plane, dtype=float),
+        np.ascontiguousarray(R_world_anchor, dtype=float),
+        np.ascontiguousarray(t_world_anchor, dtype=float),
+        m,
+        v,
+        J,
+    )
     return m, v, J, np.linalg.norm(v, axis=-1)
 
 
@@ -243,7 +263,17 @@ def point_plane_relative(
     K = len(x_anchor)
     residual = np.empty((K, 1))
     J = np.empty((K, 1, 10))
-    kernels.point_plane_relative(*(np.ascontiguousarray(a, dtype=float) for a in (x_anchor, rho, R_world_anchor, t_world_anchor, n_world, d_world, B_plane)), residual, J)
+    kernels.point_plane_relative(
+        np.ascontiguousarray(x_anchor, dtype=float),
+        np.ascontiguousarray(rho, dtype=float),
+        np.ascontiguousarray(R_world_anchor, dtype=float),
+        np.ascontiguousarray(t_world_anchor, dtype=float),
+        np.ascontiguousarray(n_world, dtype=float),
+        np.ascontiguousarray(d_world, dtype=float),
+        np.ascontiguousarray(B_plane, dtype=float),
+        residual,
+        J,
+    )
     return residual, J
 
 
@@ -279,9 +309,17 @@ def line_plane_relative(
     residual = np.empty((K, 2))
     J = np.empty((K, 2, 6 + D + 3))
     kernels.line_plane_relative(
-        *(np.ascontiguousarray(a, dtype=float) for a in (m_world, v_world, J_mv)),
+        np.ascontiguousarray(m_world, dtype=float),
+        np.ascontiguousarray(v_world, dtype=float),
+        np.ascontiguousarray(J_mv, dtype=float),
         np.ascontiguousarray(landmark, dtype=np.int64),
-        *(np.ascontiguousarray(a, dtype=float) for a in (x_start, x_end, R_world_anchor, t_world_anchor, n_world, d_world, B_plane)),
+        np.ascontiguousarray(x_start, dtype=float),
+        np.ascontiguousarray(x_end, dtype=float),
+        np.ascontiguousarray(R_world_anchor, dtype=float),
+        np.ascontiguousarray(t_world_anchor, dtype=float),
+        np.ascontiguousarray(n_world, dtype=float),
+        np.ascontiguousarray(d_world, dtype=float),
+        np.ascontiguousarray(B_plane, dtype=float),
         residual,
         J,
     )

@@ -39,7 +39,7 @@ import functools
 import io
 import pathlib
 from collections.abc import Sequence
-from typing import Literal
+from typing import Literal, TypeGuard
 
 import numpy as np
 import scipy.sparse
@@ -148,20 +148,25 @@ def _validate_groups(groups: Sequence[HessianGroup]) -> int:
     return position
 
 
+def _is_sparse(pattern: object) -> TypeGuard[scipy.sparse.spmatrix | scipy.sparse.sparray]:
+    """`scipy.sparse.issparse`, narrowing for mypy (scipy ships no type information, so its own result narrows nothing)."""
+    return scipy.sparse.issparse(pattern)
+
+
 def _nonzero_coordinates(pattern: object, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Row and column indices (intp) of the entries `!= 0` of the n×n `pattern`."""
-    if scipy.sparse.issparse(pattern):
-        shape = pattern.shape  # type: ignore[union-attr]
+    if _is_sparse(pattern):
+        shape = pattern.shape
         if tuple(shape) != (n, n):
             raise ValueError(f"pattern has shape {tuple(shape)}, groups cover {n} parameters")
-        fmt = pattern.format  # type: ignore[union-attr]
-        if fmt in ("csr", "csc") and pattern.has_canonical_format:  # type: ignore[union-attr]
+        fmt = pattern.format
+        if fmt in ("csr", "csc") and pattern.has_canonical_format:
             # Fast path: no duplicates, so the structure is exact once zeros are dropped.
-            indptr = pattern.indptr  # type: ignore[union-attr]
+            indptr = pattern.indptr
             stored = int(indptr[-1]) if len(indptr) else 0
             major = np.repeat(np.arange(n, dtype=np.intp), np.diff(indptr))
-            minor = pattern.indices[:stored].astype(np.intp, copy=False)  # type: ignore[union-attr]
-            keep = pattern.data[:stored] != 0  # type: ignore[union-attr]
+            minor = pattern.indices[:stored].astype(np.intp, copy=False)
+            keep = pattern.data[:stored] != 0
             if not keep.all():
                 major, minor = major[keep], minor[keep]
             return (major, minor) if fmt == "csr" else (minor, major)

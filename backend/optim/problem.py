@@ -406,6 +406,7 @@ class Problem:
             ii = np.flatnonzero(col >= 0)
             if len(ii):
                 step = delta[col[ii][:, None] + np.arange(inertial.INERTIAL_DIM)]
+                assert bias is not None  # a VIO state has both velocities and biases
                 vel, bias = vel.copy(), bias.copy()
                 vel[ii] += step[:, :3]
                 bias[ii] += step[:, 3:]
@@ -549,9 +550,9 @@ class Problem:
             asm.add("odometry", res * scale, J * scale[:, None], [(L.pose_col[od.i], 6), (L.pose_col[od.j], 6)])
         pr = d.prior
         if pr is not None and len(pr.index):
-            res, J = factors.pose_prior_error(poses.R_world_camera[pr.index], poses.t_world_camera[pr.index], pr.R_world_camera, pr.t_world_camera)
+            res, J_prior = factors.pose_prior_error(poses.R_world_camera[pr.index], poses.t_world_camera[pr.index], pr.R_world_camera, pr.t_world_camera)
             scale = np.array([1 / pr.sigma_rot] * 3 + [1 / pr.sigma_pos] * 3)
-            asm.add("prior", res * scale, J["pose"] * scale[:, None], [(L.pose_col[pr.index], 6)])
+            asm.add("prior", res * scale, J_prior["pose"] * scale[:, None], [(L.pose_col[pr.index], 6)])
         dp = d.distance_prior
         if dp is not None and len(dp.i):
             res, J = factors.pose_distance_error(poses.t_world_camera, dp.i, dp.j, dp.distance)
@@ -564,16 +565,19 @@ class Problem:
         """IMU preintegration, bias random walk and the linear (marginalization) prior."""
         d, L = self.data, self.layout
         ine = d.inertial
+        assert ine is not None  # called only for VIO data
         icol = L.inertial_col
         R_all, t_all = state.poses.R_world_camera, state.poses.t_world_camera
         if len(ine.imu_i):
             i, j = ine.imu_i, ine.imu_j
+            assert state.velocity is not None and state.bias is not None and icol is not None  # a VIO state and layout
             res, J = inertial.imu_residuals(R_all, t_all, state.velocity, state.bias, ine)
             asm.add("imu", res, J, [(L.pose_col[i], 6), (icol[i], 9), (L.pose_col[j], 6), (icol[j], 9)])
             res, J = inertial.bias_walk_residuals(state.bias, ine)
             asm.add("bias_walk", res, J, [(icol[i], 9), (icol[j], 9)])
         pr = ine.prior
         if pr is not None and len(pr.b):
+            assert state.velocity is not None and state.bias is not None and icol is not None  # a VIO state and layout
             vb = np.concatenate([state.velocity, state.bias], axis=1)[pr.inertial_index]
             res, J = inertial.prior_residual(pr, R_all[pr.pose_index], t_all[pr.pose_index], vb, state.plane_n[pr.plane_index], state.plane_d[pr.plane_index])
             slots = [(L.pose_col[pr.pose_index], 6), (icol[pr.inertial_index], 9), (L.plane_col[pr.plane_index], 3)]
