@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import collections
 
+from backend.optim.variant import Variant
 from backend.pipeline.snapshot import Snapshot
 
 
@@ -22,9 +23,9 @@ class SnapshotHistory:
         if capacity < 1:
             raise ValueError("capacity must be at least 1 keyframe")
         self.capacity = capacity
-        self._by_keyframe: collections.OrderedDict[int, dict[str, Snapshot]] = collections.OrderedDict()
-        self._stepped: dict[int, str] = {}  # the variant each keyframe was stepped with
-        self._latest: dict[int, str] = {}  # the variant computed or chosen last there
+        self._by_keyframe: collections.OrderedDict[int, dict[Variant, Snapshot]] = collections.OrderedDict()
+        self._stepped: dict[int, Variant] = {}  # the variant each keyframe was stepped with
+        self._latest: dict[int, Variant] = {}  # the variant computed or chosen last there
 
     def __len__(self) -> int:
         """Number of keyframes kept."""
@@ -55,7 +56,7 @@ class SnapshotHistory:
         self._by_keyframe[snapshot.keyframe][snapshot.variant] = snapshot
         self._latest[snapshot.keyframe] = snapshot.variant
 
-    def choose(self, keyframe: int, variant: str) -> None:
+    def choose(self, keyframe: int, variant: Variant) -> None:
         """Make a computed variant the latest at `keyframe` (the user returned to it)."""
         if variant in self._by_keyframe.get(keyframe, {}):
             self._latest[keyframe] = variant
@@ -71,13 +72,13 @@ class SnapshotHistory:
     def keyframes(self) -> list[int]:
         return list(self._by_keyframe)
 
-    def variants_at(self, keyframe: int) -> dict[str, Snapshot]:
+    def variants_at(self, keyframe: int) -> dict[Variant, Snapshot]:
         """Every variant computed at `keyframe` (empty if not kept), stepped one first."""
         found = self._by_keyframe.get(keyframe, {})
         first = self._stepped.get(keyframe)
         return dict(sorted(found.items(), key=lambda item: item[0] != first))
 
-    def get(self, keyframe: int, variant: str | None = None) -> Snapshot | None:
+    def get(self, keyframe: int, variant: Variant | None = None) -> Snapshot | None:
         """`variant`'s snapshot at `keyframe` if computed, else the latest there; None if
         the keyframe is not kept."""
         found = self._by_keyframe.get(keyframe)
@@ -87,10 +88,10 @@ class SnapshotHistory:
             return found[variant]
         return found[self._latest[keyframe]]
 
-    def newest(self, variant: str | None = None) -> Snapshot:
+    def newest(self, variant: Variant | None = None) -> Snapshot:
         return self.get(self.newest_keyframe, variant)  # type: ignore[return-value]
 
-    def series(self, variant: str | None = None) -> list[Snapshot]:
+    def series(self, variant: Variant | None = None) -> list[Snapshot]:
         """One snapshot per kept keyframe: `variant`'s where computed, else the latest."""
         return [self.get(k, variant) for k in self._by_keyframe]  # type: ignore[misc]
 

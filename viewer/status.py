@@ -4,17 +4,25 @@ it takes long enough to notice (a quick step should not repaint the panel twice)
 from __future__ import annotations
 
 import threading
+from typing import Protocol
 
 import viser
 
 PROGRESS_DELAY_S = 0.3
 
 
+class ProgressBar(Protocol):
+    """What the status line does with its progress bar (viser does not export the type of
+    `add_progress_bar`'s handle)."""
+
+    visible: bool
+
+
 class StatusLine:
     """The status markdown and the progress bar under the run controls. `busy` is set while
     the worker works (for tests and benchmarks)."""
 
-    def __init__(self, markdown: viser.GuiMarkdownHandle, progress: viser.GuiInputHandle[float]) -> None:
+    def __init__(self, markdown: viser.GuiMarkdownHandle, progress: ProgressBar) -> None:
         self.markdown = markdown
         self.progress = progress
         self.busy = threading.Event()

@@ -12,6 +12,6 @@ from viewer.tabs.report import ReportTab
 from viewer.tabs.variants import VariantsTab
 
 # In the order they appear.
-TABS: tuple[type[Tab], ...] = (KeyframeTab, HessianTab, VariantsTab, PlotsTab, ReportTab)  # type: ignore[assignment]  # protocols with __init__
+TABS: tuple[type[Tab], ...] = (KeyframeTab, HessianTab, VariantsTab, PlotsTab, ReportTab)
 
 __all__ = ["TABS", "HessianTab", "KeyframeTab", "PlotsTab", "ReportTab", "Shown", "Tab", "TabActions", "VariantsTab"]

@@ -41,7 +41,7 @@ class Tab(Protocol):
     """A tab of the side panel (viewer/tabs/__init__.py), made as `Tab(actions, settings)`."""
 
     title: str
-    icon: viser.Icon
+    icon: viser.IconName
 
     def __init__(self, actions: TabActions, settings: ViewerSettings) -> None: ...
 

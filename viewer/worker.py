@@ -1,0 +1,88 @@
+"""The debugger's worker: the one thread that runs every engine call, one command at a time,
+fed by the command queue (viewer/commands.py), so that GUI callbacks never block and never
+race. While playing, a step is due whenever no command comes within the play period; an
+error in a command pauses the run, and the server stays up."""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+import traceback
+from collections.abc import Callable
+
+from viewer.commands import Command, CommandQueue
+
+log = logging.getLogger(__name__)
+
+
+class Worker:
+    """Runs `execute(command, arg)` on its thread (:meth:`start`) for every command put, and
+    a Step every `period()` seconds while `playing` is set and no command comes. After
+    every command it calls `done()`; a command that raises is logged, stops playing and is
+    handed to `failed(command, error)` first. `working` is set while a command runs and
+    `worked_at` is when the last one ended (the plot thread waits for a pause)."""
+
+    def __init__(
+        self,
+        execute: Callable[[Command, object], None],
+        *,
+        period: Callable[[], float],
+        failed: Callable[[Command, Exception], None],
+        done: Callable[[], None],
+    ) -> None:
+        self.commands = CommandQueue()
+        self.playing = threading.Event()
+        self.working = threading.Event()
+        self.worked_at = 0.0
+        self._execute = execute
+        self._period = period
+        self._failed = failed
+        self._done = done
+        self._stopped = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="coplanar-engine", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def put(self, command: Command | str, arg: object = None, *, coalesce: bool = False) -> None:
+        """Queue a command; `coalesce`: as a browser's (viewer/commands.py)."""
+        self.commands.put(command, arg, coalesce=coalesce)
+
+    def wait_idle(self, timeout: float) -> None:
+        """Block until every queued command has run; TimeoutError after `timeout` seconds."""
+        if not self.commands.wait_done(timeout):
+            raise TimeoutError("the engine did not become idle")
+
+    def stop(self) -> None:
+        """Stop playing and the thread, once the command it runs has ended (up to 10 s)."""
+        self._stopped.set()
+        self.playing.clear()
+        self.commands.put(Command.STOP)
+        self._thread.join(timeout=10.0)
+
+    def _run(self) -> None:
+        while not self._stopped.is_set():
+            try:
+                timeout = self._period() if self.playing.is_set() else None
+                command, arg = self.commands.get(timeout=timeout)
+                from_timer = False
+            except queue.Empty:
+                command, arg = (Command.STEP if self.playing.is_set() else Command.WAKE), None
+                from_timer = True
+            if command is Command.STOP:
+                return
+            self.working.set()
+            try:
+                self._execute(command, arg)
+            except Exception as exc:  # an error in a step pauses the run, the server stays up
+                log.error("engine error:\n%s", traceback.format_exc())
+                self.playing.clear()
+                self._failed(command, exc)
+            finally:
+                self._done()
+                self.worked_at = time.monotonic()
+                self.working.clear()
+                if not from_timer:
+                    self.commands.task_done()
