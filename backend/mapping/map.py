@@ -58,6 +58,21 @@ class LandmarkStore:
                 col.append(row)
         return np.arange(start, start + count)
 
+    def reobserve(self, local: np.ndarray, match: np.ndarray, descriptors: np.ndarray, *, n_features: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A keyframe's re-observations of landmarks: `local` (M,) their ids, `match` (M,)
+        each one's feature in the keyframe (-1: none). The newest view's `descriptors` (one
+        row per feature) describe them best, and each counts one more keyframe (`n_kf`).
+        Returns the re-observed ids, their feature indices, and which of the keyframe's
+        `n_features` features they claim (bool)."""
+        m = np.flatnonzero(match >= 0)
+        j = match[m]
+        ids = local[m]
+        self.desc[ids] = descriptors[j]
+        self.n_kf[ids] = self.n_kf[ids] + 1
+        claimed = np.zeros(n_features, bool)
+        claimed[j] = True
+        return ids, j, claimed
+
 
 def point_store() -> LandmarkStore:
     return LandmarkStore(

@@ -72,16 +72,21 @@ class EngineCheckpoint:
     """An engine's state at one moment, explicitly: a copy of its map (None for an engine
     without a `backend.mapping.map.Map`), a deep copy of the attributes the engine declares
     in its `STATE`, and those it declares `SHARED` (the input, settings, callbacks, immutable
-    snapshots), by reference; so are functions set on the instance (callbacks, patches). Any
-    other attribute declared in neither is an error at once, not a silent deep copy."""
+    snapshots), by reference; so are functions set on the instance (callbacks, patches). The
+    parts an engine declares in `PARTS` (objects it is composed of that hold state of their
+    own, such as the image engines' `PipelineCore`) checkpoint themselves: their
+    `checkpoint()` is kept here and handed to their `restore()`. Any other attribute declared
+    in none of these is an error at once, not a silent deep copy."""
 
     map: Any
     state: dict[str, Any]
     shared: dict[str, Any]
+    parts: dict[str, EngineCheckpoint] = dataclasses.field(default_factory=dict)
 
     @staticmethod
     def of(engine: Any, the_map: Any = None) -> EngineCheckpoint:
-        declared = set(engine.STATE) | set(engine.SHARED) | ({"map"} if the_map is not None else set())
+        parts: tuple[str, ...] = getattr(engine, "PARTS", ())
+        declared = set(engine.STATE) | set(engine.SHARED) | set(parts) | ({"map"} if the_map is not None else set())
         extra = set(vars(engine)) - declared
         functions = {name for name in extra if callable(getattr(engine, name))}  # callbacks or patches set on the instance: shared
         if extra - functions:
@@ -90,6 +95,7 @@ class EngineCheckpoint:
             map=None if the_map is None else the_map.copy(),
             state=copy.deepcopy({name: getattr(engine, name) for name in engine.STATE if hasattr(engine, name)}),
             shared={name: getattr(engine, name) for name in (*engine.SHARED, *sorted(functions)) if hasattr(engine, name)},
+            parts={name: getattr(engine, name).checkpoint() for name in parts},
         )
 
     def restore_into(self, engine: Any) -> Any:
@@ -99,4 +105,6 @@ class EngineCheckpoint:
             setattr(engine, name, value)
         for name, value in self.shared.items():
             setattr(engine, name, value)
+        for name, part in self.parts.items():
+            getattr(engine, name).restore(part)
         return None if self.map is None else self.map.copy()

@@ -16,11 +16,12 @@ from __future__ import annotations
 import dataclasses
 import enum
 import pathlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from backend.optim.variant import Variant
 
 if TYPE_CHECKING:  # the readers, segmenters and engines are imported when an engine is made
+    from backend.data.source import InertialSource
     from backend.frontend.segmenters import SegmenterKind
     from backend.pipeline.engine import Engine
 
@@ -112,7 +113,8 @@ def make_engine(config: EngineConfig) -> Engine:
         from backend.pipeline.vio_engine import VioEngine, VioSettings
 
         vio_settings = VioSettings(variant=config.variant, window=config.window, seed=config.seed, **_stage_options(config))
-        return VioEngine(source, settings=vio_settings, name=f"{name}, VIO, {_segmenter_kind(config)} segmenter", segmenter=segmenter)
+        inertial = cast("InertialSource", source)  # asked for its IMU at once: without one, a DatasetError (one line)
+        return VioEngine(inertial, settings=vio_settings, name=f"{name}, VIO, {_segmenter_kind(config)} segmenter", segmenter=segmenter)
     from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
 
     if config.segmenter in (SegmenterKind.LEARNED, SegmenterKind.ORACLE):

@@ -10,7 +10,6 @@ Frames and units: world z up, metres, seconds; keyframe ids are the map's.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import numpy as np
 
@@ -21,6 +20,7 @@ from backend.mapping.map import Map
 from backend.optim import inertial
 from backend.pipeline.imu_window import ImuModel, InertialState
 from backend.pipeline.snapshot import ImuState, frozen
+from backend.pipeline.vio_settings import VioSettings
 from backend.vio.alignment import Alignment, align_visual_inertial
 
 
@@ -34,7 +34,7 @@ class StartContext:
     inertial: InertialState
     model: ImuModel
     source: StereoSource
-    settings: Any  # VioSettings (backend.pipeline.vio_engine, which imports this module)
+    settings: VioSettings
     messages: list[str]
 
 

@@ -179,3 +179,25 @@ def add_two_view_lines(the_map: Map, k: int, prev: Segments, claimed_prev: np.nd
     )
     claimed_prev[ia[sel]] = True
     return ids, ib[sel]
+
+
+def observe_mono_lines(
+    the_map: Map, k: int, segments: Segments, local_l: np.ndarray, l_match: np.ndarray, kf_segments: dict[int, tuple[Segments, np.ndarray]], *, settings: MonoSettings
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keyframe k's line observations: the local map's lines `local_l` matched to its
+    `segments` (`l_match`: segment index or -1) and new lines from LBD matches with keyframe
+    k - 1's unclaimed segments (`kf_segments`: each recent keyframe's segments and which
+    have a line; k's are added, k - 2's dropped). Returns the observed line ids, their
+    segments' endpoints (M, 4) in pixels, and the new line ids."""
+    Lm = the_map.lines
+    uv = np.concatenate([segments.start, segments.end], axis=1)
+    tracked_l, jl, claimed_l = Lm.reobserve(local_l, l_match, segments.descriptors, n_features=len(segments))
+    fresh_l = np.zeros(0, np.int64)
+    new_lines = np.zeros(0, np.int64)
+    if k - 1 in kf_segments and k > the_map.segment_start:
+        prev, claimed_prev_l = kf_segments[k - 1]
+        new_lines, fresh_l = add_two_view_lines(the_map, k, prev, claimed_prev_l, segments, claimed_l, settings=settings)
+    claimed_l[fresh_l] = True
+    kf_segments[k] = (segments, claimed_l)
+    kf_segments.pop(k - 2, None)
+    return np.concatenate([tracked_l, new_lines]), uv[np.concatenate([jl, fresh_l])], new_lines

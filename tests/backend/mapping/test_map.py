@@ -59,3 +59,17 @@ def test_frames_follow_their_reference_keyframe() -> None:
     np.testing.assert_allclose(t2[1], [1.1, 0.0, 0.0])
     np.testing.assert_allclose(R2[1], R[1])
     assert np.isnan(m.t_world_keyframe_true[1]).all() and m.keyframe_stamp_ns[1] == 100
+
+
+def test_a_reobserved_landmark_takes_the_newest_descriptor_and_claims_its_feature() -> None:
+    m = _map_with_two_keyframes()
+    descriptors = np.arange(3 * 32, dtype=np.uint8).reshape(3, 32)  # three features in the new keyframe
+    local = np.array([0, 1])
+    match = np.array([-1, 2])  # point 0 unmatched, point 1 seen as feature 2
+    ids, features, claimed = m.points.reobserve(local, match, descriptors, n_features=3)
+    np.testing.assert_array_equal(ids, [1])
+    np.testing.assert_array_equal(features, [2])
+    np.testing.assert_array_equal(claimed, [False, False, True])
+    np.testing.assert_array_equal(m.points.desc[1], descriptors[2])
+    np.testing.assert_array_equal(m.points.desc[0], np.zeros(32, np.uint8))
+    np.testing.assert_array_equal(m.points.n_kf[:], [1, 2])

@@ -48,8 +48,17 @@ def test_every_attribute_is_declared(kind: str) -> None:
     engine = ENGINES[kind]()
     for _ in range(3):
         engine.step()
-    declared = set(engine.STATE) | set(engine.SHARED) | {"map"}
+    parts = getattr(engine, "PARTS", ())
+    declared = set(engine.STATE) | set(engine.SHARED) | set(parts) | {"map"}
     assert set(vars(engine)) <= declared, sorted(set(vars(engine)) - declared)
+    for name in parts:  # a part (the image engines' core) declares its own
+        part = getattr(engine, name)
+        assert set(vars(part)) <= set(part.STATE) | set(part.SHARED) | {"map"}, name
     engine.undeclared_attribute = 1
     with pytest.raises(RuntimeError, match="undeclared_attribute"):
         engine.checkpoint()
+    for name in parts:
+        del engine.undeclared_attribute
+        getattr(engine, name).undeclared_attribute = 1
+        with pytest.raises(RuntimeError, match="undeclared_attribute"):
+            engine.checkpoint()

@@ -243,7 +243,7 @@ def test_lines_out_of_range_or_not_finite_are_culled() -> None:
     engine = StereoEngine(_sequence(8.0), settings=StereoSettings(variant="PL-w", image_scale=None, hessian=False))
     _run(engine)
     k = engine.keyframes - 1
-    w0, _ = engine._window_range(k)
+    w0, _ = engine.window_range(k)
     Lm = engine.map.lines
     in_window = np.unique(np.concatenate([engine.map.observations[j].line_id for j in range(w0, k + 1)]))
     ids = np.setdiff1d(np.flatnonzero(Lm.ok[:]), in_window)

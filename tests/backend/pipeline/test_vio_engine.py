@@ -6,7 +6,7 @@ import numpy as np
 
 from backend.data.synthetic import CAMERA
 from backend.geometry import so3
-from backend.pipeline.vio_engine import rotation_free_parallax_px
+from backend.pipeline.stages.two_view import rotation_free_parallax_px
 
 
 def _views(R_10: np.ndarray, t_10: np.ndarray, depth: tuple[float, float], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,73 @@
+"""The VIO pipeline's settings (`backend.pipeline.vio_engine` says what each stage does):
+the stereo settings that apply, plus the monocular-inertial ones. Times in seconds, pixels of
+the rectified left camera, angles as named."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from backend.pipeline.stereo_settings import StereoSettings
+from backend.vio.alignment import AlignmentSettings
+
+
+@dataclasses.dataclass(frozen=True)
+class VioSettings(StereoSettings):
+    """The stereo settings that apply (tracking, culling, window, plane detection), plus the
+    VIO ones (module docstring): keyframes by `keyframe_parallax_px` (rotation-compensated,
+    average), `min_tracked_points`, fewer than `fallback_tracked_ratio` of the last keyframe's
+    tracked points, or `max_keyframe_interval_s` (`init_max_keyframe_interval_s` before the
+    initialization, so that its keyframes come sooner); new landmarks need
+    `epipolar_px` agreement and `min_parallax_deg` with one of the `triangulation_keyframes`
+    previous keyframes (newest first); the start needs `init_parallax_px`
+    and `init_min_matches` (fewer than `init_restart_matches` followed features from the
+    first keyframe: it starts again from the frame), `init_rotation_free_parallax_px` after the best pure rotation
+    (`rotation_free_parallax_px`), and an essential matrix whose rotation agrees with the gyroscope's
+    (`init_gyro_agreement_deg` + `init_gyro_bias_bound_rad_s` × interval); before the
+    initialization, `flow_tracks` follows map points and candidate features frame to frame
+    (at most `flow_max_tracks`, `flow_min_distance_px` apart, for `flow_max_age_keyframes`,
+    triangulated with `min_parallax_deg`), and a frame is tracked with `flow_min_tracking_inliers`
+    followed map points (forward-backward checked, then EPnP-RANSAC: fewer suffice than for
+    descriptor matches); initialization after `init_keyframes` keyframes spanning
+    `init_min_span_s` (`alignment`: its acceptance; the scale may be 20 % uncertain, the
+    windows with IMU factors refine it); the gauge prior's σ (`gauge_sigma_m`, `gauge_sigma_yaw_rad` for
+    position and yaw, `gauge_sigma_tilt_rad` for roll and pitch) and the initial bias σ
+    (`bias_sigma_accel`, `bias_sigma_gyro`) and velocity σ (`velocity_sigma`); the bias
+    drift (`rebias_accel`, `rebias_gyro`) beyond which a preintegration is redone. After the
+    initialization a frame the images cannot track takes the IMU's predicted pose and becomes
+    a keyframe, up to `max_imu_only_keyframes` in a row; `max_lost_frames` untracked frames in
+    a row start a new map segment."""
+
+    window: int = 10
+    fixed_horizon: int = 10  # before the initialization only; after it the prior replaces it
+    min_keyframe_observations: int = 3  # a two-view point must be seen once more to stay
+    keyframe_parallax_px: float = 20.0
+    max_keyframe_interval_s: float = 0.3
+    epipolar_px: float = 2.0
+    min_parallax_deg: float = 1.0
+    init_parallax_px: float = 15.0
+    init_rotation_free_parallax_px: float = 2.0  # twice the essential matrix RANSAC threshold (1 px)
+    init_max_keyframe_interval_s: float = 0.2
+    init_gyro_agreement_deg: float = 1.0
+    init_gyro_bias_bound_rad_s: float = 0.1
+    init_min_matches: int = 60
+    init_restart_matches: int = 120
+    init_median_depth: float = 3.0
+    init_keyframes: int = 8
+    init_min_span_s: float = 1.0
+    gauge_sigma_m: float = 1e-3
+    gauge_sigma_yaw_rad: float = 1e-3
+    gauge_sigma_tilt_rad: float = 0.02
+    velocity_sigma: float = 0.2
+    bias_sigma_accel: float = 0.1
+    bias_sigma_gyro: float = 0.01
+    rebias_accel: float = 0.05
+    rebias_gyro: float = 0.003
+    max_lost_frames: int = 10
+    max_imu_only_keyframes: int = 40
+    triangulation_keyframes: int = 2
+    flow_tracks: bool = True
+    flow_max_tracks: int = 300
+    flow_min_distance_px: float = 20.0
+    flow_max_age_keyframes: int = 20
+    flow_min_tracking_inliers: int = 12
+    alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2)
