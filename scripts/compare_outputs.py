@@ -31,7 +31,8 @@ for scene in ("room", "corridor", "boxes"):
         for variant in ("P-wo", "PL-w"):
             CASES[f"{scene}-{mode}-{variant}"] = ["run", "--scene", scene, "--mode", mode, "--variant", variant]
 CASES["mh01-slice-PL-w"] = ["run", "--dataset", str(SHARED / "euroc_mh01_slice"), "--variant", "PL-w"]
-CASES["sim-b"] = ["sim", "--sequence", "b", "--runs", "3"]
+CASES["sim-b"] = ["sim", "--sequence", "b", "--runs", "3"]  # the Monte-Carlo study (backend.eval.montecarlo)
+CASES["mc-b-PL-w"] = ["run", "--scene", "mc-b", "--variant", "PL-w", "--keyframes", "60"]  # the Monte-Carlo engine (SimEngine)
 
 
 def _strip_timings(value: object) -> object:
