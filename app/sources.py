@@ -72,7 +72,9 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
         help=f"rendered scene ({', '.join(names[: -len(MC_SCENES)])}, or a scene JSON file) through the stereo pipeline, "
         f"or a Monte-Carlo world ({', '.join(MC_SCENES)}; no images); default {default_scene()}",
     )
-    source.add_argument("--dataset", default=None, metavar="DIR", type=name_or_path, help="EuRoC ASL folder (the one holding mav0) through the stereo pipeline")
+    source.add_argument("--dataset", default=None, metavar="PATH", type=name_or_path, help="a recorded dataset (its format recognized from its files: docs/usage.md) through the stereo pipeline")
+    p.add_argument("--calib", default=None, metavar="PATH", type=name_or_path, help="with --dataset: calibration for an input without one (a ROS bag: sensor.yaml files or a Kalibr camchain.yaml)")
+    p.add_argument("--topic", action="append", default=None, metavar="NAME=TOPIC", type=_topic, help="with --dataset (a ROS bag): read NAME (cam0, cam1, imu0, groundtruth) from TOPIC; repeatable")
     p.add_argument("--duration", type=float, default=None, metavar="SECONDS", help=f"seconds of motion of a rendered scene (default {duration_default:g}; 20 frames per second)")
     p.add_argument("--stride", type=int, default=None, metavar="N", help="rendered scenes: keep every N-th frame (20/N frames per second, N times the motion between frames; default 1)")
     p.add_argument("--speed", type=float, default=None, metavar="F", help="rendered scenes: move along the same path F times faster (default 1)")
@@ -89,6 +91,14 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
     )
     p.add_argument("--segmenter-model", default=None, metavar="FILE.onnx", type=name_or_path, help="with --segmenter learned: another model file (its .json contract beside it)")
     p.set_defaults(duration_default=duration_default)
+
+
+def _topic(text: str) -> tuple[str, str]:
+    """`NAME=TOPIC` (argparse type for `--topic`)."""
+    name, sep, topic = text.partition("=")
+    if not sep or not name.strip() or not topic.strip():
+        raise argparse.ArgumentTypeError(f"{text!r}: expected NAME=TOPIC, e.g. cam0=/left/image_raw")
+    return name.strip(), topic.strip()
 
 
 def _refuse(args: argparse.Namespace, what: str, names: tuple[str, ...]) -> None:
@@ -116,9 +126,13 @@ def build_engine(args: argparse.Namespace, *, headless: bool):
         raise UsageError(f"--frames {frames}: must be at least 1")
     scene = args.scene or default_scene()
 
+    from backend.data.source import ReaderOptions
     from backend.data.synthetic import SequenceSettings
     from backend.frontend.segmenters import SegmenterError, SegmenterKind
 
+    for name in ("calib", "topic"):
+        if args.dataset is None and getattr(args, name, None) is not None:
+            raise UsageError(f"--{name}: only with --dataset")
     if args.dataset is None and scene in MC_SCENES:
         _refuse(args, f"the Monte-Carlo scene {scene} (no images)", ("--duration", "--frames", "--stride", "--speed", "--segmenter", "--segmenter-model"))
         if getattr(args, "mode", "stereo") != "stereo":
@@ -132,6 +146,8 @@ def build_engine(args: argparse.Namespace, *, headless: bool):
     if args.dataset is not None:
         _refuse(args, "--dataset", ("--duration", "--mislabel", "--stride", "--speed"))
         options["dataset"] = args.dataset
+        calib = getattr(args, "calib", None)
+        options["reader"] = ReaderOptions(calib=None if calib is None else pathlib.Path(calib), topics=tuple(getattr(args, "topic", None) or ()))
     else:
         _refuse(args, f"the rendered scene {scene} (mc-a / mc-b only)", ("--mislabel",))
         stride = 1 if getattr(args, "stride", None) is None else args.stride

@@ -92,13 +92,30 @@ class RenderedTruth(Protocol):
 
 
 @dataclasses.dataclass(frozen=True)
+class ReaderOptions:
+    """What a reader may need besides the path (the command line's `--calib` and `--topic`).
+    `calib`: a calibration for inputs that hold none (a ROS bag: a folder of EuRoC
+    `sensor.yaml` files, `cam0/`, `cam1/`, `imu0/`, or a Kalibr `camchain.yaml`); None where
+    the input holds its own. `topics`: (name, topic) pairs overriding a bag's default topic
+    names, e.g. (("cam0", "/left/image_raw"),). Readers that need neither ignore them."""
+
+    calib: pathlib.Path | None = None
+    topics: tuple[tuple[str, str], ...] = ()
+
+    def topic(self, name: str, default: str) -> str:
+        """The topic for `name`: the override given, else `default`."""
+        return dict(self.topics).get(name, default)
+
+
+@dataclasses.dataclass(frozen=True)
 class DatasetFormat:
     """One reader of the registry: its name, whether a path holds its files, how to open
-    it, and the label an engine's name gives such an input (e.g. "EuRoC folder")."""
+    it (with the reader options), and the label an engine's name gives such an input (e.g.
+    "EuRoC folder")."""
 
     name: str
     recognizes: Callable[[pathlib.Path], bool]
-    open: Callable[[pathlib.Path], StereoSource]
+    open: Callable[[pathlib.Path, ReaderOptions], StereoSource]
     label: str
 
 
@@ -106,7 +123,7 @@ def _is_euroc(path: pathlib.Path) -> bool:
     return (path / "mav0").is_dir() or (path.name == "mav0" and path.is_dir())
 
 
-def _open_euroc(path: pathlib.Path) -> StereoSource:
+def _open_euroc(path: pathlib.Path, options: ReaderOptions) -> StereoSource:
     from backend.data.euroc import EurocDataset
 
     return EurocDataset(path)
@@ -116,7 +133,7 @@ def _is_scene_file(path: pathlib.Path) -> bool:
     return path.is_file() and path.suffix.lower() == ".json"
 
 
-def _open_scene_file(path: pathlib.Path) -> StereoSource:
+def _open_scene_file(path: pathlib.Path, options: ReaderOptions) -> StereoSource:
     from backend.data.scenes import SceneFileError, load_scene
     from backend.data.synthetic import SyntheticSequence
 
@@ -139,6 +156,6 @@ def dataset_format(path: pathlib.Path | str) -> DatasetFormat:
     return next((fmt for fmt in DATASET_FORMATS if fmt.recognizes(path)), DATASET_FORMATS[0])
 
 
-def open_dataset(path: pathlib.Path | str) -> StereoSource:
+def open_dataset(path: pathlib.Path | str, options: ReaderOptions = ReaderOptions()) -> StereoSource:
     """The input at `path`, read by the format that recognizes it (:func:`dataset_format`)."""
-    return dataset_format(path).open(pathlib.Path(path))
+    return dataset_format(path).open(pathlib.Path(path), options)

@@ -18,6 +18,7 @@ import enum
 import pathlib
 from typing import TYPE_CHECKING, Any, cast
 
+from backend.data.source import ReaderOptions
 from backend.optim.variant import Variant
 
 if TYPE_CHECKING:  # the readers, segmenters and engines are imported when an engine is made
@@ -48,7 +49,8 @@ class EngineConfig:
     image input (None: all). `mislabel`: the Monte-Carlo worlds' fraction of features with
     a wrong plane label. `seed`: the scene's, its noise's and the RANSACs'. `segmenter`:
     None for the mode's default (stereo: geometric, VIO: learned); `segmenter_model`: the
-    learned segmenter's model file (None: the shipped one)."""
+    learned segmenter's model file (None: the shipped one). `reader`: what a dataset's reader
+    may need besides its path (a calibration file, topic names; `ReaderOptions`)."""
 
     scene: str | None = None
     dataset: pathlib.Path | str | None = None
@@ -63,6 +65,7 @@ class EngineConfig:
     mode: Mode = Mode.STEREO
     segmenter: SegmenterKind | None = None
     segmenter_model: pathlib.Path | None = None
+    reader: ReaderOptions = ReaderOptions()
     interactive: bool = False
 
     def __post_init__(self) -> None:
@@ -143,7 +146,7 @@ def _open_images(config: EngineConfig) -> tuple[object, str]:
         from backend.data.source import dataset_format
 
         fmt = dataset_format(config.dataset)
-        return fmt.open(pathlib.Path(config.dataset)), f"{fmt.label} {config.dataset}"
+        return fmt.open(pathlib.Path(config.dataset), config.reader), f"{fmt.label} {config.dataset}"
     from backend.data.scenes import DEFAULT_SCENE, SCENE_NAMES, builtin_scene, load_scene
     from backend.data.synthetic import SequenceSettings, SyntheticSequence
 

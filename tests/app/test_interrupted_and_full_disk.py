@@ -84,7 +84,7 @@ def test_render_on_a_full_disk_is_one_line_and_leaves_no_mav0(tmp_path: pathlib.
     out = tmp_path / "seq"
     rc, err = _finish(_coplanar("render", "--scene", "room", "--duration", "0.3", "--out", str(out), file_limit=FILE_LIMIT_BYTES))
     assert rc == 2
-    _one_line(err, f"error: --out {out}: cannot write", "no mav0 folder was left there")
+    _one_line(err, f"error: --out {out}: cannot write", "no mav0 was left there")
     assert _visible(out) == []
 
 
@@ -117,7 +117,7 @@ def test_a_really_full_disk_too(tmp_path: pathlib.Path) -> None:
         _one_line(err, "No space left on device", "nothing was written there")
         rc, err = _finish(_coplanar("render", "--scene", "room", "--duration", "0.3", "--out", str(disk / "seq")))
         assert rc == 2
-        _one_line(err, "No space left on device", "no mav0 folder was left there")
+        _one_line(err, "No space left on device", "no mav0 was left there")
         assert _visible(disk) == []  # not even the folders they made
     finally:
         subprocess.run(["umount", str(disk)], check=False)

@@ -26,7 +26,7 @@ def test_render_and_read_back(tmp_path: pathlib.Path, capsys: pytest.CaptureFixt
     # Rendering again into the same folder is refused and keeps the sequence.
     before = sorted(p.name for p in (out / "mav0" / "cam0" / "data").iterdir())
     assert cli.main(["render", "--scene", "room", "--out", str(out), "--duration", "0.1"]) == 2
-    _one_error(capsys, "already holds a mav0 folder")
+    _one_error(capsys, "already holds mav0; choose a new folder")
     assert sorted(p.name for p in (out / "mav0" / "cam0" / "data").iterdir()) == before
 
 

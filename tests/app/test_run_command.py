@@ -317,6 +317,9 @@ def test_monte_carlo_run_writes_trajectory_metrics_and_map(tmp_path: pathlib.Pat
         (["--scene", "mc-a", "--mislabel", "2"], ["--mislabel 2", "[0, 1]"]),
         (["--window", "1"], ["--window 1", "at least 2"]),
         (["--scene", "room", "--dataset", "/data/euroc"], ["--dataset"]),
+        (["--scene", "room", "--calib", "camchain.yaml"], ["--calib", "only with --dataset"]),
+        (["--scene", "mc-a", "--topic", "cam0=/left"], ["--topic", "only with --dataset"]),
+        (["--dataset", "/data/x.bag", "--topic", "cam0"], ["--topic", "NAME=TOPIC"]),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str], argv: list[str], words: list[str]) -> None:

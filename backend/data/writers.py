@@ -1,0 +1,38 @@
+"""The formats `coplanar render --format` writes. A rendered sequence is always written first
+as an EuRoC ASL folder (`euroc_writer.py`: images, IMU, the renderer's exact ground truth,
+depth and plane ids); every other format is converted from that folder, so that each reader
+is tested on rendered data with exact truth against the EuRoC reader of the same render.
+
+A writer is one module with a `convert(euroc_folder, out)` function plus one entry in
+`DATASET_WRITERS`; its reader is an entry of `backend.data.source.DATASET_FORMATS`."""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+from collections.abc import Callable
+
+
+@dataclasses.dataclass(frozen=True)
+class DatasetWriter:
+    """One output format: its `--format` name, a description for `--help`, the top-level
+    entries it writes into the output folder (none may exist there yet), how to convert a
+    rendered EuRoC folder into a folder (None: the EuRoC folder itself), and the options
+    that read the result back (`{out}`: the output folder)."""
+
+    name: str
+    description: str
+    entries: tuple[str, ...]
+    convert: Callable[[pathlib.Path, pathlib.Path], None] | None
+    read_back: str
+
+
+DATASET_WRITERS: tuple[DatasetWriter, ...] = (DatasetWriter("euroc", "EuRoC ASL folder (mav0)", ("mav0",), None, "--dataset {out}"),)
+
+
+def dataset_writer(name: str) -> DatasetWriter:
+    """The writer called `name` (KeyError for an unknown one)."""
+    for writer in DATASET_WRITERS:
+        if writer.name == name:
+            return writer
+    raise KeyError(name)
