@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import pathlib
 import sys
 import threading
 
@@ -28,6 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--share", action="store_true", help="show viser's share button: a public address through viser's relay (off: share requests are dropped)")
     p.add_argument("--history", type=int, default=500, help="snapshots kept for the keyframe slider (default 500)")
     p.add_argument("--play", action="store_true", help="start playing at once")
+    p.add_argument("--sweep", default=None, metavar="DIR", help="also show the results of `coplanar sweep --out DIR` (its Sweep tab)")
     p.set_defaults(run=run)
 
 
@@ -86,11 +88,24 @@ def exposure_warnings(args: argparse.Namespace) -> list[str]:
     return warnings
 
 
+def sweep_folder(args: argparse.Namespace) -> pathlib.Path | None:
+    """`--sweep DIR`: a folder holding a sweep's results.json; UsageError (one line) otherwise."""
+    from app.errors import UsageError
+
+    if args.sweep is None:
+        return None
+    folder = pathlib.Path(args.sweep)
+    if not (folder / "results.json").is_file():
+        raise UsageError(f"--sweep {folder}: no results.json there (the folder `coplanar sweep --out` writes)")
+    return folder
+
+
 def run(args: argparse.Namespace) -> int:
     from app.errors import UsageError
 
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port {args.port}: not a port number")
+    sweep = sweep_folder(args)
     access = access_settings(args)
     check_bindable(args.host, args.port)  # the server binds in a thread of its own, where a failure would go unseen
     engine = build_engine(args)
@@ -99,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     for line in exposure_warnings(args):
         print(line, file=sys.stderr, flush=True)
     try:
-        debugger = Debugger(engine, host=args.host, port=args.port, settings=ViewerSettings(history=args.history), access=access)
+        debugger = Debugger(engine, host=args.host, port=args.port, settings=ViewerSettings(history=args.history, sweep=sweep), access=access)
     except OSError as e:
         raise UsageError(f"cannot serve on {args.host}:{args.port}: {e.strerror or e}") from None
     print(f"coplanar debugger: http://{args.host}:{debugger.port} ({engine.source}); Ctrl-C stops", flush=True)

@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import dataclasses
+import pathlib
 
 
 @dataclasses.dataclass(frozen=True)
 class ViewerSettings:
     """`history`: keyframes kept for scrubbing (oldest dropped first). `rate_hz`: default
     Play rate. `compare`: compute the -wo | -r | -w comparison after each step. `plots`:
-    draw the plots over time (in the background, after each update)."""
+    draw the plots over time (in the background, after each update). `sweep`: a `coplanar
+    sweep` output folder the Sweep tab shows (None: none)."""
 
     history: int = 500
     rate_hz: float = 5.0
     compare: bool = True
     plots: bool = True
+    sweep: pathlib.Path | None = None

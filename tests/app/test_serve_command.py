@@ -211,3 +211,15 @@ def test_allow_origin_and_share_reach_the_server(monkeypatch: pytest.MonkeyPatch
     assert access.allowed_origins == ("https://lab.example", "http://10.0.0.5:9000") and access.share  # type: ignore[attr-defined]
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("warning: --share:")
+
+
+def test_sweep_folder_reaches_the_debugger(monkeypatch: pytest.MonkeyPatch, tmp_path: pathlib.Path) -> None:
+    (tmp_path / "results.json").write_text('{"runs": []}')
+    given = _serve_until_the_server_starts(monkeypatch, ["--sweep", str(tmp_path)])
+    assert given["settings"].sweep == tmp_path  # type: ignore[attr-defined]
+
+
+def test_a_sweep_folder_without_results_is_one_error_line(tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["serve", "--scene", "mc-a", "--port", "0", "--sweep", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: --sweep {tmp_path}: no results.json there"), err

@@ -9,9 +9,10 @@ from viewer.tabs.hessian import HessianTab
 from viewer.tabs.keyframe import KeyframeTab
 from viewer.tabs.plots import PlotsTab
 from viewer.tabs.report import ReportTab
+from viewer.tabs.sweep import SweepTab
 from viewer.tabs.variants import VariantsTab
 
 # In the order they appear.
-TABS: tuple[type[Tab], ...] = (KeyframeTab, HessianTab, VariantsTab, PlotsTab, ReportTab)
+TABS: tuple[type[Tab], ...] = (KeyframeTab, HessianTab, VariantsTab, PlotsTab, ReportTab, SweepTab)
 
-__all__ = ["TABS", "HessianTab", "KeyframeTab", "PlotsTab", "ReportTab", "Shown", "Tab", "TabActions", "VariantsTab"]
+__all__ = ["TABS", "HessianTab", "KeyframeTab", "PlotsTab", "ReportTab", "Shown", "SweepTab", "Tab", "TabActions", "VariantsTab"]
