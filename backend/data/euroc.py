@@ -35,6 +35,8 @@ from __future__ import annotations
 import dataclasses
 import os
 import pathlib
+from collections.abc import Callable
+from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -132,7 +134,15 @@ class EurocDataset:
     and what is accepted).
 
     `root` is the folder holding `mav0` (or `mav0` itself). Raises DatasetError on bad input.
+
+    A variant of the layout (TUM-VI's export, `backend.data.tumvi`) overrides where the
+    calibration comes from (`_read_cameras`, `_read_imu_calibration`), the ground truth's
+    folder (`GROUND_TRUTH_FOLDER`) and whether 16-bit images are read (`SIXTEEN_BIT_IMAGES`).
     """
+
+    GROUND_TRUTH_FOLDER: ClassVar[str] = "state_groundtruth_estimate0"
+    SIXTEEN_BIT_IMAGES: ClassVar[bool] = False  # EuRoC's images are 8-bit; a 16-bit one is an error
+    ground_truth_frame: str = "body"  # what `T_world_body` (the ground truth) is the pose of
 
     def __init__(self, root: pathlib.Path | str, *, max_ground_truth_gap_ns: int = 100_000_000) -> None:
         self.root = pathlib.Path(root)
@@ -140,8 +150,9 @@ class EurocDataset:
         cam0_dir = _require_folder(mav0 / "cam0")
         cam1_dir = _require_folder(mav0 / "cam1")
 
-        self.cam0: CameraCalibration = read_camera_yaml(cam0_dir / "sensor.yaml")
-        self.cam1: CameraCalibration = read_camera_yaml(cam1_dir / "sensor.yaml")
+        self.cam0: CameraCalibration
+        self.cam1: CameraCalibration
+        self.cam0, self.cam1 = self._read_cameras(cam0_dir, cam1_dir)
         self.rectification: StereoRectification = stereo_rectification(self.cam0, self.cam1)
 
         stamps0, lines0, names0 = _read_camera_csv(cam0_dir)
@@ -154,10 +165,10 @@ class EurocDataset:
         self._images1 = _stereo_images(cam1_dir, [lines1[i] for i in index1], [names1[i] for i in index1])
         self.unpaired_images: tuple[int, int] = (stamps0.shape[0] - common.shape[0], stamps1.shape[0] - common.shape[0])
 
-        self._imu_calibration, self._imu, self._no_imu = _read_imu(mav0 / "imu0")
+        self._imu_calibration, self._imu, self._no_imu = _read_imu(mav0 / "imu0", self._read_imu_calibration)
 
         self.ground_truth: GroundTruth | None = None
-        truth_dir = mav0 / "state_groundtruth_estimate0"
+        truth_dir = mav0 / self.GROUND_TRUTH_FOLDER
         if truth_dir.exists():
             self.ground_truth = _read_ground_truth(_require_folder(truth_dir))
             self.T_world_body: np.ndarray = self.ground_truth.T_world_body_at(common, max_gap_ns=max_ground_truth_gap_ns)
@@ -165,6 +176,14 @@ class EurocDataset:
             self.T_world_body = np.full((common.shape[0], 4, 4), np.nan)
         self.T_world_cam0: np.ndarray = self.T_world_body @ self.cam0.T_body_camera
         self.T_world_rect0: np.ndarray = self.T_world_cam0 @ self.rectification.T_cam0_rect0
+
+    def _read_cameras(self, cam0_dir: pathlib.Path, cam1_dir: pathlib.Path) -> tuple[CameraCalibration, CameraCalibration]:
+        """The raw cameras' calibration: each camera folder's `sensor.yaml`."""
+        return read_camera_yaml(cam0_dir / "sensor.yaml"), read_camera_yaml(cam1_dir / "sensor.yaml")
+
+    def _read_imu_calibration(self, imu_dir: pathlib.Path) -> ImuCalibration:
+        """The IMU's calibration, read when `imu_dir` exists: its `sensor.yaml`."""
+        return read_imu_yaml(imu_dir / "sensor.yaml")
 
     def __len__(self) -> int:
         return int(self.timestamps_ns.shape[0])
@@ -187,7 +206,8 @@ class EurocDataset:
     def raw_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Frame `index`'s raw cam0, cam1 images: grayscale uint8 (height, width)."""
         path0, path1 = self.image_paths(index)
-        return _load_gray(path0, self.cam0), _load_gray(path1, self.cam1)
+        sixteen_bit = self.SIXTEEN_BIT_IMAGES
+        return _load_gray(path0, self.cam0, sixteen_bit=sixteen_bit), _load_gray(path1, self.cam1, sixteen_bit=sixteen_bit)
 
     def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Frame `index`'s rectified rect0, rect1 images: grayscale uint8, pixels of `camera`."""
@@ -227,6 +247,12 @@ class EurocDataset:
     def T_body_rect0(self) -> np.ndarray:
         """(4, 4) the rectified left camera in the body (IMU) frame, metres."""
         return np.asarray(self.rectification.T_body_rect0, dtype=float)
+
+    @property
+    def T_truth_rect0(self) -> np.ndarray:
+        """(4, 4) the rectified left camera in the frame the ground truth is the pose of
+        (`ground_truth_frame`: the body), metres."""
+        return self.T_body_rect0
 
     @property
     def imu_label(self) -> str:
@@ -372,14 +398,14 @@ def _stereo_images(camera_dir: pathlib.Path, lines: list[int], names: list[str])
     return images
 
 
-def _read_imu(imu_dir: pathlib.Path) -> tuple[ImuCalibration | None, ImuData | None, tuple[pathlib.Path, str] | None]:
-    """`imu0`'s calibration and samples, or None for what is not there, with the path and
-    reason to report when IMU data is asked for: no folder, or a `data.csv` without data
-    rows. A present but malformed `imu0` is a DatasetError here."""
+def _read_imu(imu_dir: pathlib.Path, read_calibration: Callable[[pathlib.Path], ImuCalibration]) -> tuple[ImuCalibration | None, ImuData | None, tuple[pathlib.Path, str] | None]:
+    """`imu0`'s calibration (`read_calibration(imu_dir)`) and samples, or None for what is
+    not there, with the path and reason to report when IMU data is asked for: no folder, or a
+    `data.csv` without data rows. A present but malformed `imu0` is a DatasetError here."""
     if not imu_dir.exists():
         return None, None, (imu_dir, "missing folder")
     _require_folder(imu_dir)
-    calibration = read_imu_yaml(imu_dir / "sensor.yaml")
+    calibration = read_calibration(imu_dir)
     path = imu_dir / "data.csv"
     imu = _read_imu_csv(path)
     if imu is None:
@@ -441,9 +467,10 @@ def _decode_quietly(encoded: np.ndarray) -> np.ndarray | None:
         cv2.utils.logging.setLogLevel(level)
 
 
-def _load_gray(path: pathlib.Path, calibration: CameraCalibration) -> np.ndarray:
+def _load_gray(path: pathlib.Path, calibration: CameraCalibration, *, sixteen_bit: bool = False) -> np.ndarray:
     """Grayscale uint8 image of the calibration's size. EuRoC's images are 8-bit grey;
-    8-bit colour is converted to grey; any other depth is an error naming the file."""
+    8-bit colour is converted to grey; with `sixteen_bit` (TUM-VI's exports), 16-bit pixels
+    keep their high byte (`>> 8`); any other depth is an error naming the file."""
     try:
         encoded = np.fromfile(path, dtype=np.uint8)
     except OSError as error:
@@ -451,6 +478,8 @@ def _load_gray(path: pathlib.Path, calibration: CameraCalibration) -> np.ndarray
     image = _decode_quietly(encoded)
     if image is None:
         raise DatasetError(path, "not a readable image")
+    if sixteen_bit and image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
     if image.dtype != np.uint8:
         raise DatasetError(path, f"image has {image.dtype.itemsize * 8}-bit {image.dtype.kind == 'f' and 'float ' or ''}pixels; expected 8-bit grey")
     if image.ndim == 3:

@@ -14,8 +14,9 @@ elsewhere):
   segmenter, the dense check and the VIO reports. Real recordings do not have it.
 
 The readers are a registry (`DATASET_FORMATS`): :func:`open_dataset` opens a path with the
-first format that recognizes its files. EuRoC ASL folders and rendered scene files are its
-entries; a new format is one reader module plus one entry here.
+first format that recognizes its files. TUM-VI's EuRoC-style exports (before EuRoC: they hold
+`mav0` too), EuRoC ASL folders and rendered scene files are its entries; a new format is one
+reader module plus one entry here.
 
 Frames and units: timestamps in nanoseconds; poses `T_world_rect0` (4, 4) in metres, world
 z up; images uint8 grey (H, W) in the pixels of `camera`.
@@ -129,6 +130,18 @@ def _open_euroc(path: pathlib.Path, options: ReaderOptions) -> StereoSource:
     return EurocDataset(path)
 
 
+def _is_tumvi(path: pathlib.Path) -> bool:
+    from backend.data.tumvi import tumvi_root
+
+    return tumvi_root(path) is not None
+
+
+def _open_tumvi(path: pathlib.Path, options: ReaderOptions) -> StereoSource:
+    from backend.data.tumvi import TumviDataset
+
+    return TumviDataset(path)
+
+
 def _is_scene_file(path: pathlib.Path) -> bool:
     return path.is_file() and path.suffix.lower() == ".json"
 
@@ -143,8 +156,10 @@ def _open_scene_file(path: pathlib.Path, options: ReaderOptions) -> StereoSource
         raise DatasetError(e.path, e.reason) from None
 
 
+EUROC_FORMAT = DatasetFormat("EuRoC ASL folder (holding mav0)", _is_euroc, _open_euroc, "EuRoC folder")
 DATASET_FORMATS: tuple[DatasetFormat, ...] = (
-    DatasetFormat("EuRoC ASL folder (holding mav0)", _is_euroc, _open_euroc, "EuRoC folder"),
+    DatasetFormat("TUM-VI export in EuRoC format (mav0 with mocap0, dso/camchain.yaml)", _is_tumvi, _open_tumvi, "TUM-VI folder"),
+    EUROC_FORMAT,
     DatasetFormat("rendered scene file (.json, frames rendered on demand)", _is_scene_file, _open_scene_file, "rendered scene file"),
 )
 
@@ -153,7 +168,7 @@ def dataset_format(path: pathlib.Path | str) -> DatasetFormat:
     """The first format that recognizes `path`; EuRoC when none does (its reader then says
     in one line what is missing)."""
     path = pathlib.Path(path)
-    return next((fmt for fmt in DATASET_FORMATS if fmt.recognizes(path)), DATASET_FORMATS[0])
+    return next((fmt for fmt in DATASET_FORMATS if fmt.recognizes(path)), EUROC_FORMAT)
 
 
 def open_dataset(path: pathlib.Path | str, options: ReaderOptions = ReaderOptions()) -> StereoSource:

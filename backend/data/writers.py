@@ -27,7 +27,16 @@ class DatasetWriter:
     read_back: str
 
 
-DATASET_WRITERS: tuple[DatasetWriter, ...] = (DatasetWriter("euroc", "EuRoC ASL folder (mav0)", ("mav0",), None, "--dataset {out}"),)
+def _convert_tumvi(euroc_folder: pathlib.Path, out: pathlib.Path) -> None:
+    from backend.data.tumvi_writer import convert
+
+    convert(euroc_folder, out)
+
+
+DATASET_WRITERS: tuple[DatasetWriter, ...] = (
+    DatasetWriter("euroc", "EuRoC ASL folder (mav0)", ("mav0",), None, "--dataset {out}"),
+    DatasetWriter("tumvi", "TUM-VI export in EuRoC format (mav0, dso/camchain.yaml; equidistant fisheye images)", ("mav0", "dso"), _convert_tumvi, "--dataset {out}"),
+)
 
 
 def dataset_writer(name: str) -> DatasetWriter:

@@ -10,7 +10,7 @@ import pytest
 
 from backend.data.errors import DatasetError
 from backend.data.scenes import builtin_scene, scene_to_json
-from backend.data.source import DATASET_FORMATS, RenderedTruth, StereoSource, open_dataset
+from backend.data.source import DATASET_FORMATS, EUROC_FORMAT, RenderedTruth, StereoSource, dataset_format, open_dataset
 from backend.data.synthetic import SequenceSettings, SyntheticSequence, render_sequence
 
 SHARED = pathlib.Path(__file__).resolve().parents[3].parent / "shared" / "data"
@@ -57,8 +57,12 @@ def test_what_no_reader_recognizes_is_one_line_naming_it(tmp_path: pathlib.Path,
     assert words in str(error.value) and str(path) in str(error.value) and "\n" not in str(error.value)
 
 
-def test_every_format_is_named_and_the_euroc_reader_comes_first() -> None:
-    assert DATASET_FORMATS[0].name.startswith("EuRoC") and all(f.name for f in DATASET_FORMATS)
+def test_every_format_is_named_and_tumvi_is_asked_before_euroc() -> None:
+    """A TUM-VI export holds mav0 too: its reader must be asked first. EuRoC's reader is the
+    fallback that says what is missing when no format recognizes a path."""
+    names = [f.name for f in DATASET_FORMATS]
+    assert all(names) and names.index(EUROC_FORMAT.name) == next(i for i, n in enumerate(names) if n.startswith("TUM-VI")) + 1
+    assert EUROC_FORMAT.name.startswith("EuRoC") and dataset_format("/no/such/path") is EUROC_FORMAT
 
 
 @pytest.mark.skipif(not (SHARED / "euroc_mh01_slice").exists(), reason="../shared/data is absent")
