@@ -134,6 +134,8 @@ class EurocDataset:
     `root` is the folder holding `mav0` (or `mav0` itself). Raises DatasetError on bad input.
     """
 
+    ground_truth_frame: str = "body"  # state_groundtruth_estimate0 gives poses of the IMU body
+
     def __init__(self, root: pathlib.Path | str, *, max_ground_truth_gap_ns: int = 100_000_000) -> None:
         self.root = pathlib.Path(root)
         mav0 = _find_mav0(self.root)
@@ -165,6 +167,7 @@ class EurocDataset:
             self.T_world_body = np.full((common.shape[0], 4, 4), np.nan)
         self.T_world_cam0: np.ndarray = self.T_world_body @ self.cam0.T_body_camera
         self.T_world_rect0: np.ndarray = self.T_world_cam0 @ self.rectification.T_cam0_rect0
+        self.T_truth_rect0: np.ndarray = self.T_body_rect0  # (4, 4) rect0 in the ground truth's frame (the body)
 
     def __len__(self) -> int:
         return int(self.timestamps_ns.shape[0])
@@ -227,6 +230,15 @@ class EurocDataset:
     def T_body_rect0(self) -> np.ndarray:
         """(4, 4) the rectified left camera in the body (IMU) frame, metres."""
         return np.asarray(self.rectification.T_body_rect0, dtype=float)
+
+    def ground_truth_samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """`state_groundtruth_estimate0/data.csv`'s samples as the file gives them: timestamps
+        (M,) int64 ns and body poses `T_world_body` (M, 4, 4), metres (`T_BS` of its
+        `sensor.yaml` applied: the identity in EuRoC); M is 0 without ground truth."""
+        truth = self.ground_truth
+        if truth is None:
+            return np.zeros(0, np.int64), np.zeros((0, 4, 4))
+        return truth.timestamp_ns, _pose(truth.R_world_body, truth.p_world_body)
 
     @property
     def imu_label(self) -> str:

@@ -76,8 +76,12 @@ class SyntheticSequence:
     plane ids) and `plane_table` (id -> (n, d)). Rendering a pair (about 45 per second) is
     faster than reading its PNGs back, so frames are not written anywhere: the last
     `cache_frames` pairs are kept in memory, and each frame's image noise has its own seed,
-    so any frame renders the same whenever it is asked for.
+    so any frame renders the same whenever it is asked for. The ground truth is the body's
+    (`ground_truth_frame` "body", as `render` writes it to `state_groundtruth_estimate0`), the
+    left camera in it `T_truth_rect0` = `T_body_rect0`.
     """
+
+    ground_truth_frame: str = "body"
 
     def __init__(self, scene: Scene, *, settings: SequenceSettings = SequenceSettings(), cache_frames: int = 64) -> None:
         self.scene = scene
@@ -99,6 +103,7 @@ class SyntheticSequence:
         T[:, :3, 3] = self.trajectory.position(t)
         self.T_world_body = T
         self.T_world_rect0 = T @ T_BODY_CAM0  # the cameras are rectified already
+        self.T_truth_rect0 = np.asarray(T_BODY_CAM0, dtype=float)  # (4, 4) the left camera in the body frame
         self.ground_truth_valid = np.ones(len(t), bool)
         self.plane_table = scene.planes
         self._cache: collections.OrderedDict[int, tuple[View, View]] = collections.OrderedDict()
