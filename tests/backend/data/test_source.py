@@ -88,12 +88,14 @@ def test_each_source_says_which_frame_its_ground_truth_is_of(euroc: pathlib.Path
         assert source.ground_truth_frame == "body"
         np.testing.assert_allclose(source.T_truth_rect0, source.T_body_rect0, atol=1e-15)  # type: ignore[attr-defined]
         np.testing.assert_allclose(source.T_world_rect0 @ np.linalg.inv(source.T_truth_rect0), source.T_world_body, atol=1e-12)  # type: ignore[attr-defined]
-    # The folder's ground-truth file, sample by sample: the rendered body poses at the IMU rate.
+    # The folder's ground-truth file, sample by sample: the rendered body poses at the IMU
+    # rate and at the last frame (past the last IMU sample), so every frame has its own row.
     assert isinstance(folder, GroundTruthSamples) and not isinstance(rendered, GroundTruthSamples)
     stamps, T_world_body = folder.ground_truth_samples()
-    np.testing.assert_array_equal(stamps, rendered.imu.timestamp_ns)
-    at_frames = np.searchsorted(stamps, rendered.timestamps_ns[:-1])
-    np.testing.assert_allclose(T_world_body[at_frames], rendered.T_world_body[:-1], atol=1e-6)
+    np.testing.assert_array_equal(stamps, np.append(rendered.imu.timestamp_ns, rendered.timestamps_ns[-1]))
+    assert folder.ground_truth_valid.all()
+    at_frames = np.searchsorted(stamps, rendered.timestamps_ns)
+    np.testing.assert_allclose(T_world_body[at_frames], rendered.T_world_body, atol=1e-6)
 
 
 def test_a_folder_without_ground_truth_has_no_samples(euroc: pathlib.Path, tmp_path: pathlib.Path) -> None:
