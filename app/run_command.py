@@ -2,18 +2,29 @@
 
 Outputs in `--out DIR`:
 
-- `trajectory.txt`: TUM (`t x y z qx qy qz qw`, seconds, `T_world_camera` of the rectified
-  left camera), one line per tracked frame (the stereo engine's per-frame trajectory: each
-  frame's pose relative to its reference keyframe composed with that keyframe's final
-  estimate; lost frames are left out). The Monte-Carlo worlds have keyframes only: there it
-  is the keyframes (`metrics.json` says so: `trajectory_poses`, `frames == keyframes`).
+- `trajectory.txt`: TUM (`t x y z qx qy qz qw`, seconds), one line per tracked frame (the
+  stereo engine's per-frame trajectory: each frame's pose relative to its reference keyframe
+  composed with that keyframe's final estimate; lost frames are left out). The poses are of
+  the frame the dataset's own ground truth gives poses of (`--trajectory-frame truth`, the
+  default: EuRoC's and rendered scenes' IMU body, `T_world_body = T_world_rect0 ·
+  T_body_rect0⁻¹`; KITTI's left camera), or of the rectified left camera as the engine
+  estimates them (`--trajectory-frame camera`); the header comment and `metrics.json`
+  (`trajectory_frame`, `trajectory_frame_note`, `T_frame_rect0`) say which
+  (`backend.export.output_frame`). The Monte-Carlo worlds have keyframes only: there it is
+  the keyframes, of the simulated camera (`metrics.json` says so: `trajectory_poses`,
+  `frames == keyframes`).
 - `keyframes.txt`: the same for the keyframes only.
 - `groundtruth.txt`: the ground truth of the evaluated frames (those of trajectory.txt with
-  ground truth), TUM, the same timestamps: `evo_ape tum DIR/groundtruth.txt
-  DIR/trajectory.txt -a` reproduces `ate_rmse_cm` (`-as`: `ate_sim3_rmse_cm`), and
-  `evo_rpe tum DIR/groundtruth.txt DIR/trajectory.txt --delta 1 --delta_unit m`
-  reproduces `rpe_cm_per_m`.
-- `metrics.json` (see :func:`backend.eval.run_metrics.trajectory_metrics` for the trajectory figures), the combined
+  ground truth), TUM, in the same frame, the same timestamps: `evo_ape tum
+  DIR/groundtruth.txt DIR/trajectory.txt -a` reproduces `ate_rmse_cm` (`-as`:
+  `ate_sim3_rmse_cm`), and `evo_rpe tum DIR/groundtruth.txt DIR/trajectory.txt --delta 1
+  --delta_unit m` reproduces `rpe_cm_per_m`. Where the dataset's ground truth is a file of
+  timed samples (EuRoC's `state_groundtruth_estimate0/data.csv`), a frame's ground truth is
+  the sample nearest in time (within 10 ms), as evo pairs them: with the default frame,
+  `evo_ape euroc DATASET/mav0/state_groundtruth_estimate0/data.csv DIR/trajectory.txt -a`
+  reproduces `ate_rmse_cm` too.
+- `metrics.json` (see :func:`backend.eval.run_metrics.trajectory_metrics` for the trajectory
+  figures, all computed on the written poses), the combined
   `map.ply`, and the map as the usual 3D tools read it (`backend.export.map_files`):
   `points.ply` (point cloud), `lines.ply` (line set), `planes.ply` (triangle mesh with
   `plane_id`), `cameras.ply` (keyframe frustums).
@@ -27,10 +38,17 @@ command says so.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import pathlib
 import sys
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+if TYPE_CHECKING:
+    from backend.data.source import StereoSource
+    from backend.export.output_frame import OutputFrame, TrajectoryFrame
+    from backend.pipeline.snapshot import Trajectory
 
 DEFAULT_DURATION_S = 30.0
 # Stages the stereo engine reports as means per frame within a step (the rest: per keyframe).
@@ -39,6 +57,7 @@ DEFAULT_DURATION_S = 30.0
 def add_parser(sub: argparse._SubParsersAction) -> None:
     from app.options import path
     from app.sources import add_source_arguments
+    from backend.export.output_frame import TrajectoryFrame
     from backend.optim.variant import VARIANT_NAMES
 
     p = sub.add_parser(
@@ -48,6 +67,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--variant", required=True, choices=VARIANT_NAMES, help="parametrization")
     p.add_argument("--out", required=True, type=path, help="output folder (created if missing)")
     p.add_argument("--frames", type=int, default=None, metavar="N", help="stereo inputs: stop after the first N frames (default all)")
+    p.add_argument(
+        "--trajectory-frame",
+        choices=[str(f) for f in TrajectoryFrame],
+        default=str(TrajectoryFrame.TRUTH),
+        help="what the written trajectories are poses of: truth (default): the frame of the dataset's own ground truth (EuRoC, rendered scenes: the IMU body), "
+        "so evo against the dataset's ground-truth file reproduces metrics.json; camera: the rectified left camera, as the engine estimates it",
+    )
     p.add_argument("--keyframes", type=int, default=None, metavar="N", help="stop after N keyframes (default: mc-a / mc-b one pass of the trajectory, stereo inputs all)")
     p.add_argument(
         "--dense",
@@ -104,18 +130,48 @@ def _write_staged(out: pathlib.Path, write) -> None:
         raise UsageError(f"--out {out}: cannot write {detail}; nothing was written there") from None
 
 
-def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, groundtruth) -> None:
-    """trajectory.txt (`frames`: every tracked frame), keyframes.txt, groundtruth.txt,
-    metrics.json, the combined map.ply and the typed points.ply, lines.ply, planes.ply and
-    cameras.ply (backend.export.map_files)."""
+class Evaluated(NamedTuple):
+    """Poses as written (`poses`, of the output frame), the ground truth each is evaluated
+    against (`truth`, the same instants, NaN rows: none), their accuracy (the metrics.json
+    figures) and the evaluated ground truth (`groundtruth`: groundtruth.txt)."""
+
+    poses: Trajectory
+    truth: Trajectory
+    accuracy: dict[str, Any]
+    groundtruth: Trajectory
+
+
+def evaluate(frame: OutputFrame, source: StereoSource | None, estimate: Trajectory, truth: Trajectory) -> Evaluated:
+    """`estimate` (`T_world_rect0`) as poses of `frame` and their accuracy against the ground
+    truth in that frame (`truth`: the source's own, `T_world_rect0`, NaN rows: none; where
+    `source` holds timed samples, the sample nearest each pose: backend.export.output_frame)."""
+    from backend.eval.run_metrics import trajectory_metrics
+    from backend.export.output_frame import ground_truth_in
+    from backend.pipeline.snapshot import Trajectory
+
+    poses = frame.poses(estimate)
+    in_frame = ground_truth_in(frame, source, truth)
+    accuracy, evaluated = trajectory_metrics(poses, in_frame)
+    return Evaluated(poses, in_frame, accuracy, Trajectory.of(*evaluated))
+
+
+def _frame_metrics(frame: OutputFrame) -> dict[str, Any]:
+    """What metrics.json says of the written poses' frame."""
+    return {"trajectory_frame": frame.name, "trajectory_frame_note": frame.note, "T_frame_rect0": frame.T_frame_rect0.tolist()}
+
+
+def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frame: OutputFrame, frames: Trajectory, keyframes: Trajectory, groundtruth: Trajectory) -> None:
+    """trajectory.txt (`frames`: every tracked frame), keyframes.txt, groundtruth.txt (all
+    three poses of `frame`, which their header says), metrics.json, the combined map.ply and
+    the typed points.ply, lines.ply, planes.ply and cameras.ply (backend.export.map_files)."""
     from backend.common.optional import MissingLibraryError
     from backend.export.map_files import write_map_files
     from backend.export.ply import write_ply
     from backend.export.tum import write_tum
 
-    write_tum(out / "trajectory.txt", frames)
-    write_tum(out / "keyframes.txt", snapshot.estimate)
-    write_tum(out / "groundtruth.txt", groundtruth)
+    write_tum(out / "trajectory.txt", frames, comment=f"coplanar run, every tracked frame: {frame.note}")
+    write_tum(out / "keyframes.txt", keyframes, comment=f"coplanar run, keyframes: {frame.note}")
+    write_tum(out / "groundtruth.txt", groundtruth, comment=f"coplanar run, ground truth of the evaluated frames: {frame.note}")
     (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2, allow_nan=False) + "\n")
     try:
         write_map_files(snapshot, out)
@@ -124,13 +180,20 @@ def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, ground
         print(f"warning: {e}; wrote map.ply only", file=sys.stderr)
 
 
-def _no_ground_truth(estimate):
+def _no_ground_truth(estimate: Trajectory) -> Trajectory:
     import numpy as np
 
     from backend.pipeline.snapshot import Trajectory
 
     n = len(estimate)
     return Trajectory.of(np.asarray(estimate.timestamp_ns), np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan))
+
+
+def _frame_choice(args: argparse.Namespace) -> TrajectoryFrame:
+    """`--trajectory-frame` (the default where a caller's namespace has none)."""
+    from backend.export.output_frame import TrajectoryFrame
+
+    return TrajectoryFrame(getattr(args, "trajectory_frame", TrajectoryFrame.TRUTH))
 
 
 def _cm(value: float) -> str:
@@ -173,8 +236,7 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:
 
     from app.errors import UsageError
     from backend.eval import sequences
-    from backend.eval.run_metrics import trajectory_metrics
-    from backend.pipeline.snapshot import Trajectory
+    from backend.export.output_frame import output_frame
 
     n = args.keyframes if args.keyframes is not None else len(sequences.make_world(engine.settings.sequence, seed=args.seed).t_world_camera)
     if n < 1:
@@ -192,16 +254,18 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:
     mean = {k: float(np.mean(v)) for k, v in timings.items()}
     # No images, no frames between keyframes: the trajectory is the keyframes'.
     gt = snapshot.ground_truth if snapshot.ground_truth is not None else _no_ground_truth(snapshot.estimate)
-    accuracy, evaluated = trajectory_metrics(snapshot.estimate, gt)
+    frame = output_frame(None, choice=_frame_choice(args))
+    written = evaluate(frame, None, snapshot.estimate, gt)
     metrics = {
         "source": engine.source,
         "variant": args.variant,
         "trajectory_poses": "keyframes (a Monte-Carlo world has no frames between keyframes)",
+        **_frame_metrics(frame),
         "frames": n,
         "frames_tracked": len(snapshot.estimate),
         "keyframes": n,
-        **accuracy,
-        "keyframe_ate_rmse_cm": snapshot.metrics.ate_cm,
+        **written.accuracy,
+        "keyframe_ate_rmse_cm": written.accuracy["ate_rmse_cm"],
         "planes": len(snapshot.planes),
         "points": len(snapshot.points),
         "lines": len(snapshot.lines),
@@ -217,7 +281,7 @@ def _run_simulation(args: argparse.Namespace, engine) -> int:
             "all_stages": mean,
         },
     }
-    _write_staged(args.out, lambda folder: _write_outputs(folder, snapshot, metrics, frames=snapshot.estimate, groundtruth=Trajectory.of(*evaluated)))
+    _write_staged(args.out, lambda folder: _write_outputs(folder, snapshot, metrics, frame=frame, frames=written.poses, keyframes=written.poses, groundtruth=written.groundtruth))
     print(
         f"{n} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned), RMSE {_cm(metrics['rmse_cm'])}, "
         f"{len(snapshot.planes)} planes; {mean['total']:.1f} ms per keyframe; "
@@ -264,9 +328,9 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:
     from tqdm import tqdm
 
     from app.errors import UsageError
-    from backend.eval.run_metrics import stereo_timing, trajectory_metrics, vio_metrics
+    from backend.eval.run_metrics import stereo_timing, vio_metrics
+    from backend.export.output_frame import output_frame
     from backend.pipeline.engine import EndOfSequence
-    from backend.pipeline.snapshot import Trajectory
 
     if args.keyframes is not None and args.keyframes < 1:
         raise UsageError(f"--keyframes {args.keyframes}: must be at least 1")
@@ -301,18 +365,23 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:
         engine.on_frame = None
     if snapshot is None:
         raise UsageError(f"{engine.source}: no keyframe in {engine.frames} frames")
+    source = engine.data_source
+    frame = output_frame(source, choice=_frame_choice(args))
     frames = engine.frame_trajectory()
-    accuracy, evaluated = trajectory_metrics(frames.estimate, frames.ground_truth)
+    written = evaluate(frame, source, frames.estimate, frames.ground_truth)
+    keyframe_truth = snapshot.ground_truth if snapshot.ground_truth is not None else _no_ground_truth(snapshot.estimate)
+    keyframes = evaluate(frame, source, snapshot.estimate, keyframe_truth)
     metrics = {
         "source": engine.source,
         "variant": args.variant,
         "trajectory_poses": "tracked frames",
+        **_frame_metrics(frame),
         "frames": engine.frames,
         "frames_tracked": len(frames),
         "keyframes": len(snapshot.estimate),
-        **accuracy,
-        "keyframe_ate_rmse_cm": snapshot.metrics.ate_cm,
-        "keyframe_rmse_cm": snapshot.metrics.rmse_cm,
+        **written.accuracy,
+        "keyframe_ate_rmse_cm": keyframes.accuracy["ate_rmse_cm"],
+        "keyframe_rmse_cm": keyframes.accuracy["rmse_cm"],
         "planes": len(snapshot.planes),
         "points": len(snapshot.points),
         "lines": len(snapshot.lines),
@@ -324,12 +393,12 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:
     }
     if snapshot.imu is not None:
         metrics["mode"] = "vio"
-        metrics["vio"] = vio_metrics(snapshot, frames)
+        metrics["vio"] = vio_metrics(snapshot, dataclasses.replace(frames, estimate=written.poses, ground_truth=written.truth))
 
     def write(folder: pathlib.Path) -> None:
         if getattr(args, "dense", False):
-            metrics["dense"] = dense_mesh(engine.data_source, snapshot, folder / "mesh.ply")
-        _write_outputs(folder, snapshot, metrics, frames=frames.estimate, groundtruth=Trajectory.of(*evaluated))
+            metrics["dense"] = dense_mesh(source, snapshot, folder / "mesh.ply")
+        _write_outputs(folder, snapshot, metrics, frame=frame, frames=written.poses, keyframes=keyframes.poses, groundtruth=written.groundtruth)
 
     _write_staged(args.out, write)
     per_frame = metrics["timing_ms"]["total_per_frame"]
@@ -337,6 +406,6 @@ def _run_stereo(args: argparse.Namespace, engine) -> int:
         f"{engine.frames} frames, {metrics['keyframes']} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned, "
         f"{metrics['frames_evaluated']} frames), RMSE {_cm(metrics['rmse_cm'])}, {len(snapshot.planes)} planes, {lost} lost frames, "
         f"{reinitializations} re-initializations; {per_frame:.1f} ms per frame; "
-        f"wrote {args.out}/trajectory.txt, keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply"
+        f"wrote {args.out}/trajectory.txt, keyframes.txt, groundtruth.txt (poses of {frame.name}), metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply"
     )
     return 0

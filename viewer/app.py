@@ -21,6 +21,7 @@ from typing import Any, TypeVar
 
 import viser
 
+from backend.export.output_frame import TrajectoryFrame, output_frame
 from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter
 from backend.optim.variant import Variant
 from backend.pipeline.engine import EndOfSequence, Engine
@@ -336,7 +337,8 @@ class Debugger:
         """Send `what` of the shown snapshot to `client` (viewer/exports.py)."""
         snapshot = self._shown
         is_newest = snapshot is not None and snapshot.keyframe == self.history.newest_keyframe
-        exports.export(client, what, snapshot, frame_trajectory=getattr(self.engine, "frame_trajectory", None), is_newest=is_newest)
+        frame = output_frame(getattr(self.engine, "data_source", None), choice=TrajectoryFrame.TRUTH)
+        exports.export(client, what, snapshot, frame_trajectory=getattr(self.engine, "frame_trajectory", None), is_newest=is_newest, frame=frame)
 
     # ------------------------------------------------------------------ control
 

@@ -6,8 +6,9 @@ from collections.abc import Callable
 
 import viser
 
+from backend.export.output_frame import OutputFrame
 from backend.export.ply import snapshot_ply_bytes
-from backend.pipeline.snapshot import FrameTrajectory, Snapshot
+from backend.pipeline.snapshot import FrameTrajectory, Snapshot, Trajectory
 from viewer import panels
 
 
@@ -18,11 +19,13 @@ def export(
     *,
     frame_trajectory: Callable[[], FrameTrajectory] | None,
     is_newest: bool,
+    frame: OutputFrame,
 ) -> None:
     """Send `what` of `snapshot` to `client`: "map" (one PLY), "files" (a zip of the map
     files 3D tools read), "keyframes" (TUM) or "trajectory" (every tracked frame, TUM;
     the keyframes where the engine tracks no frames or the shown keyframe is not the
-    newest, with a note saying so)."""
+    newest, with a note saying so). The TUM files are poses of `frame` (as `coplanar run`
+    writes them by default: the frame of the dataset's ground truth), which their header says."""
     if client is None:
         return
     if snapshot is None:
@@ -42,12 +45,17 @@ def export(
             return
         client.send_file_download(f"coplanar_map_kf{snapshot.keyframe:05d}_{snapshot.variant}.zip", data, save_immediately=True)
     elif what == "keyframes":
-        client.send_file_download(f"{stem}_keyframes.txt", panels.tum_bytes(snapshot.estimate), save_immediately=True)
+        client.send_file_download(f"{stem}_keyframes.txt", _tum(frame, snapshot.estimate), save_immediately=True)
     elif frame_trajectory is None or not is_newest:
         # Per-frame poses exist for the engine's current state only (the newest keyframe).
-        client.send_file_download(f"{stem}_keyframes.txt", panels.tum_bytes(snapshot.estimate), save_immediately=True)
+        client.send_file_download(f"{stem}_keyframes.txt", _tum(frame, snapshot.estimate), save_immediately=True)
         client.add_notification(
             "Keyframe poses exported", "Every-frame poses exist only for the newest keyframe and engines that track frames; the keyframe poses were written.", auto_close_seconds=6.0
         )
     else:
-        client.send_file_download(f"{stem}_trajectory.txt", panels.tum_bytes(frame_trajectory().estimate), save_immediately=True)
+        client.send_file_download(f"{stem}_trajectory.txt", _tum(frame, frame_trajectory().estimate), save_immediately=True)
+
+
+def _tum(frame: OutputFrame, estimate: Trajectory) -> bytes:
+    """`estimate` (`T_world_rect0`) as TUM text of poses of `frame`, its header saying so."""
+    return panels.tum_bytes(frame.poses(estimate), comment=f"coplanar serve export: {frame.note}")

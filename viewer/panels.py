@@ -149,10 +149,11 @@ def ab_markdown(a: Snapshot, b: Snapshot | None) -> str:
     )
 
 
-def tum_bytes(trajectory: Trajectory) -> bytes:
-    """`trajectory` as TUM text (`t x y z qx qy qz qw`, seconds, metres)."""
+def tum_bytes(trajectory: Trajectory, *, comment: str = "") -> bytes:
+    """`trajectory` as TUM text (`t x y z qx qy qz qw`, seconds, metres), `comment` in its
+    `#` header."""
     from backend.export.tum import write_tum
 
     buffer = io.StringIO()
-    write_tum(buffer, trajectory)
+    write_tum(buffer, trajectory, comment=comment)
     return buffer.getvalue().encode()

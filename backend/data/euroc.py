@@ -142,7 +142,7 @@ class EurocDataset:
 
     GROUND_TRUTH_FOLDER: ClassVar[str] = "state_groundtruth_estimate0"
     SIXTEEN_BIT_IMAGES: ClassVar[bool] = False  # EuRoC's images are 8-bit; a 16-bit one is an error
-    ground_truth_frame: str = "body"  # what `T_world_body` (the ground truth) is the pose of
+    ground_truth_frame: str = "body"  # what `T_world_body` (the ground truth) is the pose of: the IMU body
 
     def __init__(self, root: pathlib.Path | str, *, max_ground_truth_gap_ns: int = 100_000_000) -> None:
         self.root = pathlib.Path(root)
@@ -247,6 +247,15 @@ class EurocDataset:
     def T_body_rect0(self) -> np.ndarray:
         """(4, 4) the rectified left camera in the body (IMU) frame, metres."""
         return np.asarray(self.rectification.T_body_rect0, dtype=float)
+
+    def ground_truth_samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ground truth's samples as its file gives them (`GROUND_TRUTH_FOLDER/data.csv`): timestamps
+        (M,) int64 ns and body poses `T_world_body` (M, 4, 4), metres (`T_BS` of its
+        `sensor.yaml` applied: the identity in EuRoC); M is 0 without ground truth."""
+        truth = self.ground_truth
+        if truth is None:
+            return np.zeros(0, np.int64), np.zeros((0, 4, 4))
+        return truth.timestamp_ns, _pose(truth.R_world_body, truth.p_world_body)
 
     @property
     def T_truth_rect0(self) -> np.ndarray:

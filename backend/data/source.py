@@ -4,11 +4,17 @@ Three protocols, each a set of attributes a source has or has not (never probed 
 elsewhere):
 
 - :class:`StereoSource`: every input. Timestamps, the rectified left camera with its
-  baseline, rectified stereo pairs by index, and the ground-truth pose of the rectified
-  left camera where there is one. Stereo SLAM needs nothing else.
+  baseline, rectified stereo pairs by index, the ground-truth pose of the rectified left
+  camera where there is one, and the frame the dataset's own ground truth gives poses of
+  (`ground_truth_frame`, with the rectified left camera in it: `T_truth_rect0`), so that the
+  written trajectories can be in that frame. Stereo SLAM needs nothing else.
 - :class:`InertialSource`: also the IMU (samples, noise densities, where the IMU sits
   relative to the rectified camera). VIO needs it; a source without IMU data raises a
   one-line DatasetError when asked.
+- :class:`GroundTruthSamples`: the ground truth as its file gives it (timed samples, at
+  their own times, not interpolated at the frames'), where a source has such a file: the
+  written trajectories are evaluated against the sample nearest each frame, as evo pairs a
+  trajectory with that file (`backend.export.output_frame`).
 - :class:`RenderedTruth`: the exact truth of a rendered scene (per-pixel plane ids and
   depth, the planes, the continuous trajectory and the IMU biases), for the oracle
   segmenter, the dense check and the VIO reports. Real recordings do not have it.
@@ -42,6 +48,13 @@ class StereoSource(Protocol):
 
     timestamps_ns: np.ndarray  # (N,) int64
     T_world_rect0: np.ndarray  # (N, 4, 4); NaN where there is no ground truth
+    # The frame whose poses the dataset's own ground-truth file gives: "body" (the IMU body:
+    # EuRoC, TUM-VI, rendered scenes) or "cam0" (KITTI's left camera); and the rectified left
+    # camera in that frame (4, 4), metres: `T_world_truth = T_world_rect0 · T_truth_rect0⁻¹`.
+    ground_truth_frame: str
+
+    @property
+    def T_truth_rect0(self) -> np.ndarray: ...  # an attribute or a property
 
     @property
     def camera(self) -> PinholeCamera: ...
@@ -74,6 +87,16 @@ class InertialSource(StereoSource, Protocol):
 
     @property
     def imu_label(self) -> str: ...  # where the IMU samples come from, for messages
+
+
+@runtime_checkable
+class GroundTruthSamples(Protocol):
+    """A source whose ground truth is a file of timed samples (module docstring)."""
+
+    def ground_truth_samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """The file's samples: timestamps (M,) int64 ns, strictly increasing, and poses
+        `T_world_truth` (M, 4, 4) of `ground_truth_frame`, metres; M is 0 without ground truth."""
+        ...
 
 
 @runtime_checkable

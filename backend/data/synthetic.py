@@ -5,7 +5,8 @@ region; the left camera looks along the body's x axis (`R_BODY_CAMERA_FORWARD`),
 of the IMU, the right one `baseline` metres along the left camera's x. Stereo pairs at 20 Hz
 (752×480, EuRoC-like intrinsics, square pixels, already rectified), IMU at 200 Hz consistent
 with the trajectory (`backend.data.motion`), then IMU noise and bias random walk at EuRoC's
-`imu0/sensor.yaml` values. Ground truth: the body state at every IMU sample, and per frame
+`imu0/sensor.yaml` values. Ground truth: the body state at every IMU sample and at the last
+frame (past the last IMU sample: every frame has a ground-truth row at its own time), and per frame
 the depth and plane-instance masks of both cameras, with the plane table.
 """
 
@@ -76,8 +77,12 @@ class SyntheticSequence:
     plane ids) and `plane_table` (id -> (n, d)). Rendering a pair (about 45 per second) is
     faster than reading its PNGs back, so frames are not written anywhere: the last
     `cache_frames` pairs are kept in memory, and each frame's image noise has its own seed,
-    so any frame renders the same whenever it is asked for.
+    so any frame renders the same whenever it is asked for. The ground truth is the body's
+    (`ground_truth_frame` "body", as `render` writes it to `state_groundtruth_estimate0`), the
+    left camera in it `T_truth_rect0` = `T_body_rect0`.
     """
+
+    ground_truth_frame: str = "body"
 
     def __init__(self, scene: Scene, *, settings: SequenceSettings = SequenceSettings(), cache_frames: int = 64) -> None:
         self.scene = scene
@@ -99,6 +104,7 @@ class SyntheticSequence:
         T[:, :3, 3] = self.trajectory.position(t)
         self.T_world_body = T
         self.T_world_rect0 = T @ T_BODY_CAM0  # the cameras are rectified already
+        self.T_truth_rect0 = np.asarray(T_BODY_CAM0, dtype=float)  # (4, 4) the left camera in the body frame
         self.ground_truth_valid = np.ones(len(t), bool)
         self.plane_table = scene.planes
         self._cache: collections.OrderedDict[int, tuple[View, View]] = collections.OrderedDict()
@@ -166,10 +172,7 @@ def render_sequence(scene: Scene, out: pathlib.Path | str, *, settings: Sequence
     seq = SyntheticSequence(scene, settings=settings, cache_frames=1)
     writer = EurocWriter(out, camera=CAMERA, T_body_cam0=T_BODY_CAM0, imu_noise=settings.imu_noise, camera_rate_hz=settings.camera_rate_hz, imu_rate_hz=settings.imu_rate_hz)
     writer.write_imu(seq.imu.timestamp_ns, seq.imu.gyro, seq.imu.accel)
-    truth = seq.imu_true
-    t_imu = truth.timestamp_ns * 1e-9
-    traj = seq.trajectory
-    writer.write_ground_truth(GroundTruthRows(truth.timestamp_ns, traj.position(t_imu), traj.rotation(t_imu), traj.velocity(t_imu), seq.bias_gyro, seq.bias_accel))
+    writer.write_ground_truth(_ground_truth_rows(seq))
     ids = sorted(seq.plane_table)
     plane = np.full((max(ids, default=-1) + 1, 4), np.nan)  # the table is indexed by id
     for i in ids:
@@ -182,3 +185,18 @@ def render_sequence(scene: Scene, out: pathlib.Path | str, *, settings: Sequence
             on_frame(k + 1, len(seq))
     writer.close()
     return len(seq)
+
+
+def _ground_truth_rows(seq: SyntheticSequence) -> GroundTruthRows:
+    """The body state at every IMU sample and at the last frame where it is past the last
+    sample (the IMU's last interval ends there), its biases those of the last sample: every
+    frame has a ground-truth row at its own time, as evo pairs frames with the file's rows."""
+    stamps = seq.imu_true.timestamp_ns
+    bias_gyro, bias_accel = seq.bias_gyro, seq.bias_accel
+    last_frame = seq.timestamps_ns[-1]
+    if len(stamps) and last_frame > stamps[-1]:
+        stamps = np.append(stamps, last_frame)
+        bias_gyro, bias_accel = np.vstack([bias_gyro, bias_gyro[-1:]]), np.vstack([bias_accel, bias_accel[-1:]])
+    t = stamps * 1e-9
+    traj = seq.trajectory
+    return GroundTruthRows(stamps, traj.position(t), traj.rotation(t), traj.velocity(t), bias_gyro, bias_accel)

@@ -32,9 +32,9 @@ COMMANDS = {
     "run": (
         ["run", "--scene", "room", "--duration", "0.3", "--variant", "P-wo"],
         "--out",
-        ("--scene", "--duration", "--stride", "--speed", "--seed", "--window", "--mode", "--segmenter", "--segmenter-model", "--variant", "--out", "--frames", "--keyframes"),
+        ("--scene", "--duration", "--stride", "--speed", "--seed", "--window", "--mode", "--segmenter", "--segmenter-model", "--variant", "--out", "--frames", "--keyframes", "--trajectory-frame"),
     ),
-    "run-mc": (["run", "--scene", "mc-b", "--variant", "P-wo", "--keyframes", "5"], "--out", ("--seed", "--mislabel", "--window", "--keyframes", "--variant", "--out")),
+    "run-mc": (["run", "--scene", "mc-b", "--variant", "P-wo", "--keyframes", "5"], "--out", ("--seed", "--mislabel", "--window", "--keyframes", "--variant", "--out", "--trajectory-frame")),
     "render": (["render", "--scene", "room", "--duration", "0.05"], "--out", ("--scene", "--duration", "--seed", "--image-noise", "--blur", "--exposure", "--out")),
     "sim": (
         ["sim", "--sequence", "b", "--runs", "1", "--variants", "P-wo"],

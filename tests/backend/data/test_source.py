@@ -10,7 +10,7 @@ import pytest
 
 from backend.data.errors import DatasetError
 from backend.data.scenes import builtin_scene, scene_to_json
-from backend.data.source import DATASET_FORMATS, EUROC_FORMAT, RenderedTruth, StereoSource, dataset_format, open_dataset
+from backend.data.source import DATASET_FORMATS, EUROC_FORMAT, GroundTruthSamples, RenderedTruth, StereoSource, dataset_format, open_dataset
 from backend.data.synthetic import SequenceSettings, SyntheticSequence, render_sequence
 
 SHARED = pathlib.Path(__file__).resolve().parents[3].parent / "shared" / "data"
@@ -70,7 +70,7 @@ def test_the_real_mh01_slice_opens_as_euroc_without_an_imu() -> None:
     source = open_dataset(SHARED / "euroc_mh01_slice")
     assert isinstance(source, StereoSource) and len(source) == 300 and not source.has_imu  # type: ignore[attr-defined]
     # isinstance asks for every protocol member in no fixed order: none may raise here.
-    for protocol in (StereoSource, RenderedTruth):
+    for protocol in (StereoSource, GroundTruthSamples, RenderedTruth):
         for name in protocol.__protocol_attrs__ if hasattr(protocol, "__protocol_attrs__") else typing._get_protocol_attrs(protocol):  # type: ignore[attr-defined]
             hasattr(source, name)
     assert not isinstance(source, RenderedTruth)
@@ -81,3 +81,33 @@ def test_the_real_mh01_slice_opens_as_euroc_without_an_imu() -> None:
 def test_a_rendered_sequence_has_the_truth_a_folder_lacks() -> None:
     seq = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=0.2))
     assert isinstance(seq, RenderedTruth) and seq.imu_label == "IMU"
+
+
+def test_each_source_says_which_frame_its_ground_truth_is_of(euroc: pathlib.Path) -> None:
+    """EuRoC folders and rendered scenes give body (IMU) poses: `T_truth_rect0` is the left
+    camera in the body, and `T_world_rect0 · T_truth_rect0⁻¹` the body's ground truth."""
+    folder = open_dataset(euroc)
+    rendered = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=0.2))
+    for source in (folder, rendered):
+        assert source.ground_truth_frame == "body"
+        np.testing.assert_allclose(source.T_truth_rect0, source.T_body_rect0, atol=1e-15)  # type: ignore[attr-defined]
+        np.testing.assert_allclose(source.T_world_rect0 @ np.linalg.inv(source.T_truth_rect0), source.T_world_body, atol=1e-12)  # type: ignore[attr-defined]
+    # The folder's ground-truth file, sample by sample: the rendered body poses at the IMU
+    # rate and at the last frame (past the last IMU sample), so every frame has its own row.
+    assert isinstance(folder, GroundTruthSamples) and not isinstance(rendered, GroundTruthSamples)
+    stamps, T_world_body = folder.ground_truth_samples()
+    np.testing.assert_array_equal(stamps, np.append(rendered.imu.timestamp_ns, rendered.timestamps_ns[-1]))
+    assert folder.ground_truth_valid.all()
+    at_frames = np.searchsorted(stamps, rendered.timestamps_ns)
+    np.testing.assert_allclose(T_world_body[at_frames], rendered.T_world_body, atol=1e-6)
+
+
+def test_a_folder_without_ground_truth_has_no_samples(euroc: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    import shutil
+
+    copy = tmp_path / "no_truth"
+    shutil.copytree(euroc, copy)
+    shutil.rmtree(copy / "mav0" / "state_groundtruth_estimate0")
+    source = open_dataset(copy)
+    stamps, T = source.ground_truth_samples()  # type: ignore[attr-defined]
+    assert stamps.shape == (0,) and T.shape == (0, 4, 4) and source.ground_truth_frame == "body"

@@ -34,6 +34,8 @@ class _Perturbed:
         self.T_world_rect0 = source.T_world_rect0[index]
         self.camera = source.camera
         self.ground_truth_valid = source.ground_truth_valid[index]
+        self.ground_truth_frame = source.ground_truth_frame
+        self.T_truth_rect0 = source.T_truth_rect0
 
     def __len__(self) -> int:
         return len(self.index)
