@@ -17,8 +17,10 @@ Topics (defaults as EuRoC's and TUM-VI's own bags name them; each overridable by
   `/vrpn_client/raw_transform` (TUM-VI, TransformStamped) and `/leica/position` (EuRoC MH,
   `geometry_msgs/PointStamped`); `geometry_msgs/PoseStamped` is read too. A transform is the
   pose `T_world_S` of the tracked frame S; the body pose is `T_world_S T_BS⁻¹` with `T_BS`
-  from the calibration folder's `vicon0/sensor.yaml` (Vicon), `mocap0/sensor.yaml` (VRPN)
-  when there, else S is the body (what `backend.data.rosbag_writer` writes).
+  from the calibration folder's `vicon0/sensor.yaml` (Vicon, as in EuRoC's folders and what
+  `backend.data.rosbag_writer` writes), `mocap0/sensor.yaml` (VRPN) when there, else S is the
+  body. The poses are computed as the EuRoC reader computes its ground truth
+  (`euroc.quaternion_poses`), so equal numbers give equal poses bit for bit.
   **Positions only** (PointStamped, EuRoC MH's Leica prism): the rotation is unknown, so
   neither the body's nor the camera's pose is (the prism sits ~10 cm from the camera, which
   turns with the unknown rotation). The bag then has no ground-truth poses
@@ -53,7 +55,6 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 from rosbags.typesys import Stores, get_typestore
-from scipy.spatial.transform import Rotation
 
 from backend.data.calibration import (
     CameraCalibration,
@@ -65,7 +66,7 @@ from backend.data.calibration import (
     stereo_rectification,
 )
 from backend.data.errors import DatasetError
-from backend.data.euroc import QUATERNION_NORM_TOLERANCE, GroundTruth
+from backend.data.euroc import QUATERNION_NORM_TOLERANCE, GroundTruth, SensorPoses
 from backend.data.motion import ImuData, ImuNoise
 from backend.geometry.camera import PinholeCamera
 
@@ -107,10 +108,13 @@ class _Bag:
     def __getstate__(self) -> dict[str, Any]:
         return {**self.__dict__, "_reader": None}
 
+    def check_exists(self) -> None:
+        if not self.path.exists():
+            raise DatasetError(self.path, "no such file" if self.kind == "ROS1 bag" else "no such folder")
+
     def reader(self) -> AnyReader:
         if self._reader is None:
-            if not self.path.exists():
-                raise DatasetError(self.path, "no such file" if self.kind == "ROS1 bag" else "no such folder")
+            self.check_exists()
             try:
                 reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
                 reader.open()
@@ -188,6 +192,7 @@ class RosBagDataset:
         topic) overrides of the default topics (names cam0, cam1, imu0, groundtruth)."""
         self.path = pathlib.Path(path)
         self._bag = _Bag(self.path)
+        self._bag.check_exists()
         self._topics = _topic_table(self.path, topics)
         calib = _calibration_folder(self.path, calib)
         self.calibration_folder = calib
@@ -415,7 +420,7 @@ def _ground_truth_topic(bag: _Bag, given: str | None) -> tuple[str, str | None] 
 
 
 def _pose_values(message: Any) -> tuple[float, ...]:
-    """(x, y, z, qx, qy, qz, qw) of a TransformStamped or PoseStamped; (x, y, z, nan…) of a PointStamped."""
+    """(x, y, z, qw, qx, qy, qz) of a TransformStamped or PoseStamped; (x, y, z, nan…) of a PointStamped."""
     if message.__msgtype__ == TRANSFORM:
         p, q = message.transform.translation, message.transform.rotation
     elif message.__msgtype__ == POSE:
@@ -423,7 +428,7 @@ def _pose_values(message: Any) -> tuple[float, ...]:
     else:
         p = message.point
         return (p.x, p.y, p.z, np.nan, np.nan, np.nan, np.nan)
-    return (p.x, p.y, p.z, q.x, q.y, q.z, q.w)
+    return (p.x, p.y, p.z, q.w, q.x, q.y, q.z)
 
 
 def _check_samples(path: pathlib.Path, topic: str, stamps_ns: np.ndarray, values: np.ndarray, what: str) -> None:
@@ -436,34 +441,22 @@ def _check_samples(path: pathlib.Path, topic: str, stamps_ns: np.ndarray, values
         raise DatasetError(path, f"topic {topic}: two messages stamped {stamps_ns[twice[0]]} ns")
 
 
-def _sensor_in_body(calib: pathlib.Path, sensor: str | None) -> np.ndarray:
+def _sensor_in_body(calib: pathlib.Path, sensor: str | None) -> np.ndarray | None:
     """`T_BS` (4, 4) of the ground truth's tracked frame from `calib/<sensor>/sensor.yaml`;
-    the identity (the transform is the body's pose) without that file."""
+    None (the transforms are the body's poses) without that file."""
     if sensor is None or not (calib / sensor / "sensor.yaml").is_file():
-        return np.eye(4)
+        return None
     return read_sensor_transform(calib / sensor / "sensor.yaml", default=np.eye(4))
 
 
-def _body_truth(path: pathlib.Path, topic: str, stamps_ns: np.ndarray, poses: np.ndarray, T_body_sensor: np.ndarray) -> GroundTruth:
-    """Body poses `T_world_body = T_world_S T_BS⁻¹` from the tracked frame's (x, y, z, qx, qy, qz, qw)."""
+def _body_truth(path: pathlib.Path, topic: str, stamps_ns: np.ndarray, poses: np.ndarray, T_body_sensor: np.ndarray | None) -> GroundTruth:
+    """Body poses `T_world_body = T_world_S T_BS⁻¹` from the tracked frame's (x, y, z, qw, qx, qy, qz)."""
     norm = np.linalg.norm(poses[:, 3:7], axis=1)
     off = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE)
     if off.size:
         raise DatasetError(path, f"topic {topic}: rotation stamped {stamps_ns[off[0]]} ns has quaternion norm {norm[off[0]]:.6g}, expected 1")
-    T_world_sensor = np.zeros((stamps_ns.shape[0], 4, 4))
-    T_world_sensor[:, :3, :3] = Rotation.from_quat(poses[:, 3:7] / norm[:, None]).as_matrix()
-    T_world_sensor[:, :3, 3] = poses[:, :3]
-    T_world_sensor[:, 3, 3] = 1.0
-    T_world_body = T_world_sensor @ np.linalg.inv(T_body_sensor)
-    nan = np.full((stamps_ns.shape[0], 3), np.nan)
-    return GroundTruth(
-        timestamp_ns=stamps_ns,
-        p_world_body=T_world_body[:, :3, 3].copy(),
-        R_world_body=T_world_body[:, :3, :3].copy(),
-        v_world=nan,
-        gyro_bias=nan.copy(),
-        accel_bias=nan.copy(),
-    )
+    samples = SensorPoses(timestamp_ns=stamps_ns, p_world_sensor=poses[:, :3], q_world_sensor_wxyz=poses[:, 3:7], T_body_sensor=T_body_sensor, extra=np.full((stamps_ns.shape[0], 9), np.nan))
+    return samples.body_truth()
 
 
 def _grey(message: Any) -> np.ndarray:

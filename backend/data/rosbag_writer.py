@@ -3,7 +3,7 @@
 
 ```
 OUT/data.bag                    ROS1 (rosbag1)    or    OUT/data/{metadata.yaml, data_0.db3}   ROS2 (rosbag2)
-OUT/calib/{cam0,cam1,imu0}/sensor.yaml            the folder's calibration, copied (a bag holds none)
+OUT/calib/{cam0,cam1,imu0,vicon0}/sensor.yaml     the folder's calibration, copied (a bag holds none)
 ```
 
 Topics, as EuRoC's and TUM-VI's own bags name them (`backend.data.rosbag`'s defaults):
@@ -13,14 +13,16 @@ Topics, as EuRoC's and TUM-VI's own bags name them (`backend.data.rosbag`'s defa
   are the folder's, JPEG or PNG alike); camera rows outside the stereo set are left out.
 - `/imu0`: `sensor_msgs/Imu`, gyro rad/s and accelerometer m/s² in the IMU frame (EuRoC's
   body frame); no orientation (`orientation_covariance[0] = -1`, ROS's "not provided").
-- `/vicon/firefly_sbx/firefly_sbx`: `geometry_msgs/TransformStamped`, the body pose in the
-  world frame (`header.frame_id` "world", `child_frame_id` "body", metres) at the samples of
-  `state_groundtruth_estimate0` when the folder has one. That topic because it is where
-  EuRoC's own bags (V1/V2) carry a full pose and where bag tools look for EuRoC's ground
-  truth; `/leica/position` (MH) carries positions only, and `state_groundtruth_estimate0`
-  is in no official bag. The written pose is already the body's (the folder's `T_BS` of its
-  ground truth applied), so no `vicon0/sensor.yaml` is written: the reader takes the
-  transform as the body pose.
+- `/vicon/firefly_sbx/firefly_sbx`: `geometry_msgs/TransformStamped`, the rows of
+  `state_groundtruth_estimate0/data.csv` when the folder has one: the pose of its sensor S
+  in the world frame (`header.frame_id` "world", `child_frame_id` "body", metres; the
+  quaternion as in the file), with that folder's `sensor.yaml` (S's `T_BS`, the identity in
+  EuRoC, where S is the body) copied as `calib/vicon0/sensor.yaml`. That topic because it is
+  where EuRoC's own bags (V1/V2) carry a full pose, the Vicon marker's, with its `T_BS` in
+  `vicon0/sensor.yaml`, and where bag tools look for EuRoC's ground truth; `/leica/position`
+  (MH) carries positions only, and `state_groundtruth_estimate0` is in no official bag.
+  The reader turns the rows into body poses by the EuRoC reader's own computation, so the
+  bag's ground truth is the folder's bit for bit.
 
 Header stamps and the bag's record times are the folder's timestamps (ns). Messages are
 written in time order, one image at a time (a long sequence is never held in memory).
@@ -42,9 +44,8 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
-from scipy.spatial.transform import Rotation
 
-from backend.data.euroc import EurocDataset, GroundTruth
+from backend.data.euroc import EurocDataset, SensorPoses, read_sensor_poses
 from backend.data.motion import ImuData
 
 CAM0_TOPIC = "/cam0/image_raw"
@@ -112,11 +113,11 @@ class _Messages:
             linear_acceleration_covariance=np.zeros(9),
         )
 
-    def transform(self, stamp_ns: int, seq: int, R_world_body: np.ndarray, p_world_body: np.ndarray) -> object:
-        """The body pose in the world frame (metres) as a TransformStamped world -> body."""
-        x, y, z, w = Rotation.from_matrix(R_world_body).as_quat()
+    def transform(self, stamp_ns: int, seq: int, q_wxyz: np.ndarray, p_world: np.ndarray) -> object:
+        """A pose in the world frame (quaternion (w, x, y, z), metres) as a TransformStamped world -> body."""
+        w, x, y, z = q_wxyz
         rotation = self._types["geometry_msgs/msg/Quaternion"](x=float(x), y=float(y), z=float(z), w=float(w))
-        transform = self._types["geometry_msgs/msg/Transform"](translation=self.vector(p_world_body), rotation=rotation)
+        transform = self._types["geometry_msgs/msg/Transform"](translation=self.vector(p_world), rotation=rotation)
         return self._types[TRANSFORM](header=self.header(stamp_ns, "world", seq), child_frame_id="body", transform=transform)
 
 
@@ -125,8 +126,10 @@ def convert(euroc_folder: pathlib.Path, out: pathlib.Path, *, ros2: bool = False
     `out/data` (`ros2`; `storage` sqlite3: `data.db3`, or mcap), and its calibration as
     `out/calib` (module docstring). `out` exists; neither entry may exist in it yet."""
     dataset = EurocDataset(euroc_folder)
+    truth_dir = _mav0(euroc_folder) / "state_groundtruth_estimate0"
+    truth = read_sensor_poses(truth_dir) if dataset.ground_truth is not None else None
     messages = _Messages(ros2=ros2)
-    streams = [_image_stream(dataset, messages), _imu_stream(dataset, messages), _ground_truth_stream(dataset.ground_truth, messages)]
+    streams = [_image_stream(dataset, messages), _imu_stream(dataset, messages), _ground_truth_stream(truth, messages)]
     ordered = heapq.merge(*streams, key=_Message.key)
     if ros2:
         _write_ros2(out / "data", ordered, messages, storage)
@@ -152,11 +155,11 @@ def _imu_stream(dataset: EurocDataset, messages: _Messages) -> Iterator[_Message
         yield _Message(stamp, 2, IMU_TOPIC, functools.partial(messages.imu, stamp, i, imu.gyro[i], imu.accel[i]))
 
 
-def _ground_truth_stream(truth: GroundTruth | None, messages: _Messages) -> Iterator[_Message]:
+def _ground_truth_stream(truth: SensorPoses | None, messages: _Messages) -> Iterator[_Message]:
     if truth is None:
         return
     for i, stamp in enumerate(truth.timestamp_ns.tolist()):
-        yield _Message(stamp, 3, GROUND_TRUTH_TOPIC, functools.partial(messages.transform, stamp, i, truth.R_world_body[i], truth.p_world_body[i]))
+        yield _Message(stamp, 3, GROUND_TRUTH_TOPIC, functools.partial(messages.transform, stamp, i, truth.q_world_sensor_wxyz[i], truth.p_world_sensor[i]))
 
 
 MSGTYPES = {CAM0_TOPIC: IMAGE, CAM1_TOPIC: IMAGE, IMU_TOPIC: IMU, GROUND_TRUTH_TOPIC: TRANSFORM}
@@ -181,11 +184,16 @@ def _write_ros2(path: pathlib.Path, ordered: Iterator[_Message], messages: _Mess
             writer.write(connections[message.topic], message.stamp_ns, messages.serialize(message.build(), MSGTYPES[message.topic]))
 
 
+def _mav0(euroc_folder: pathlib.Path) -> pathlib.Path:
+    return euroc_folder / "mav0" if (euroc_folder / "mav0").is_dir() else euroc_folder
+
+
 def _copy_calibration(euroc_folder: pathlib.Path, calib: pathlib.Path) -> None:
-    """`cam0`, `cam1` and (when there) `imu0` `sensor.yaml` of the folder into `calib`."""
-    mav0 = euroc_folder / "mav0" if (euroc_folder / "mav0").is_dir() else euroc_folder
-    for sensor in ("cam0", "cam1", "imu0"):
+    """`cam0`, `cam1` and (when there) `imu0` `sensor.yaml` of the folder into `calib`, and
+    the ground truth's as `vicon0` (the frame the ground-truth topic's transforms track)."""
+    mav0 = _mav0(euroc_folder)
+    for sensor, target in (("cam0", "cam0"), ("cam1", "cam1"), ("imu0", "imu0"), ("state_groundtruth_estimate0", "vicon0")):
         source = mav0 / sensor / "sensor.yaml"
         if source.is_file():
-            (calib / sensor).mkdir(parents=True)
-            shutil.copyfile(source, calib / sensor / "sensor.yaml")
+            (calib / target).mkdir(parents=True)
+            shutil.copyfile(source, calib / target / "sensor.yaml")
