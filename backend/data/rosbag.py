@@ -104,9 +104,10 @@ class _Bag:
         self.path = path
         self.kind = "ROS1 bag" if path.suffix.lower() == ".bag" else "ROS2 bag"
         self._reader: AnyReader | None = None
+        self._connections: dict[str, list[Connection]] = {}  # by topic, checked
 
     def __getstate__(self) -> dict[str, Any]:
-        return {**self.__dict__, "_reader": None}
+        return {**self.__dict__, "_reader": None, "_connections": {}}  # both hold the open files
 
     def check_exists(self) -> None:
         if not self.path.exists():
@@ -134,6 +135,8 @@ class _Bag:
     def connections(self, topic: str, name: str, msgtypes: tuple[str, ...]) -> list[Connection]:
         """The connections of `topic` (read as `name`), all of one of `msgtypes`; else a
         DatasetError naming the topic and the bag's topics or the type found."""
+        if topic in self._connections:
+            return self._connections[topic]
         found = [c for c in self.reader().connections if c.topic == topic]
         if not found:
             have = ", ".join(f"{t} ({m})" for t, m in sorted(self.topics().items())) or "none"
@@ -141,6 +144,7 @@ class _Bag:
         wrong = [c.msgtype for c in found if c.msgtype not in msgtypes]
         if wrong:
             raise DatasetError(self.path, f"topic {topic} ({name}) holds {wrong[0]}, expected {' or '.join(msgtypes)}")
+        self._connections[topic] = found
         return found
 
     def messages(self, connections: Sequence[Connection], *, start: int | None = None, stop: int | None = None) -> Iterator[tuple[int, Any]]:
@@ -163,6 +167,7 @@ class _Bag:
         if self._reader is not None:
             self._reader.close()
             self._reader = None
+            self._connections = {}
 
 
 def stamp_ns(message: Any) -> int:
@@ -176,7 +181,6 @@ class _ImageTopic:
 
     name: str
     topic: str
-    connections: list[Connection]
     stamps_ns: np.ndarray
     record_ns: np.ndarray
 
@@ -315,7 +319,7 @@ class RosBagDataset:
         twice = np.flatnonzero(np.diff(stamps_ns) == 0)
         if twice.size:
             raise DatasetError(self.path, f"topic {topic} ({name}): two images stamped {stamps_ns[twice[0]]} ns")
-        return _ImageTopic(name, topic, connections, stamps_ns, np.asarray(records, dtype=np.int64)[order])
+        return _ImageTopic(name, topic, stamps_ns, np.asarray(records, dtype=np.int64)[order])
 
     def _check_image(self, message: Any, topic: str) -> None:
         encoding = str(message.encoding)
@@ -329,7 +333,8 @@ class RosBagDataset:
 
     def _read_image(self, camera: _ImageTopic, stamp: int, record_ns: int) -> np.ndarray:
         """The grey image stamped `stamp` of `camera`, found by its record time."""
-        for _, message in self._bag.messages(camera.connections, start=record_ns, stop=record_ns + 1):
+        connections = self._bag.connections(camera.topic, camera.name, (IMAGE,))
+        for _, message in self._bag.messages(connections, start=record_ns, stop=record_ns + 1):
             if stamp_ns(message) == stamp:
                 return _grey(message)
         raise DatasetError(self.path, f"topic {camera.topic}: the image stamped {stamp} ns is no longer there (was the bag changed?)")
