@@ -104,7 +104,7 @@ class _Bag:
         self.path = path
         self.kind = "ROS1 bag" if path.suffix.lower() == ".bag" else "ROS2 bag"
         self._reader: AnyReader | None = None
-        self._connections: dict[str, list[Connection]] = {}  # by topic, checked
+        self._connections: dict[str, list[Connection]] = {}  # by topic
 
     def __getstate__(self) -> dict[str, Any]:
         return {**self.__dict__, "_reader": None, "_connections": {}}  # both hold the open files
@@ -135,9 +135,7 @@ class _Bag:
     def connections(self, topic: str, name: str, msgtypes: tuple[str, ...]) -> list[Connection]:
         """The connections of `topic` (read as `name`), all of one of `msgtypes`; else a
         DatasetError naming the topic and the bag's topics or the type found."""
-        if topic in self._connections:
-            return self._connections[topic]
-        found = [c for c in self.reader().connections if c.topic == topic]
+        found = self._connections.get(topic) or [c for c in self.reader().connections if c.topic == topic]
         if not found:
             have = ", ".join(f"{t} ({m})" for t, m in sorted(self.topics().items())) or "none"
             raise DatasetError(self.path, f"no topic {topic} for {name} (topics in the bag: {have}); choose one with --topic {name}=TOPIC")

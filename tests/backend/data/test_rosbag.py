@@ -214,6 +214,7 @@ def test_positions_only_ground_truth_gives_no_poses_and_says_so(renders: dict[st
         ("no cam1", ["no topic /cam1/image_raw for cam1", "/cam0/image_raw (sensor_msgs/msg/Image)", "--topic cam1=TOPIC"]),
         ("mono16", ["topic /cam1/image_raw", "encoding 'mono16'", "expected mono8"]),
         ("imu as cam1", ["topic /imu0 (cam1) holds sensor_msgs/msg/Imu, expected sensor_msgs/msg/Image"]),
+        ("cam0 as imu0", ["topic /cam0/image_raw (imu0) holds sensor_msgs/msg/Image, expected sensor_msgs/msg/Imu"]),  # a topic read before
         ("no calib", ["a bag holds no camera calibration: pass --calib"]),
     ],
 )
@@ -239,6 +240,8 @@ def test_a_bad_ros1_bag_is_one_line_naming_it(renders: dict[str, tuple[pathlib.P
         shutil.copyfile(source, target)
     if damage == "imu as cam1":
         options = ReaderOptions(calib=options.calib, topics=(("cam1", "/imu0"),))
+    if damage == "cam0 as imu0":
+        options = ReaderOptions(calib=options.calib, topics=(("imu0", "/cam0/image_raw"),))
     if damage == "no calib":
         options = ReaderOptions()
     with pytest.raises(DatasetError) as error:
