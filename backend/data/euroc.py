@@ -94,6 +94,10 @@ class GroundTruth:
     gyro_bias: np.ndarray  # (M, 3)
     accel_bias: np.ndarray  # (M, 3)
 
+    def T_world_body(self) -> np.ndarray:
+        """(M, 4, 4) the samples' body poses, metres."""
+        return _pose(self.R_world_body, self.p_world_body)
+
     def __len__(self) -> int:
         return int(self.timestamp_ns.shape[0])
 
@@ -255,7 +259,7 @@ class EurocDataset:
         truth = self.ground_truth
         if truth is None:
             return np.zeros(0, np.int64), np.zeros((0, 4, 4))
-        return truth.timestamp_ns, _pose(truth.R_world_body, truth.p_world_body)
+        return truth.timestamp_ns, truth.T_world_body()
 
     @property
     def T_truth_rect0(self) -> np.ndarray:
@@ -432,9 +436,45 @@ def _read_imu_csv(path: pathlib.Path) -> ImuData | None:
     return ImuData(timestamp_ns=stamps, gyro=values[:, 0:3], accel=values[:, 3:6])
 
 
-def _read_ground_truth(truth_dir: pathlib.Path) -> GroundTruth:
-    """Body poses from `data.csv` (the pose of the file's sensor S, `T_world_S`) and, when
-    present, `sensor.yaml`'s `T_BS` (identity otherwise): `T_world_body = T_world_S T_BS⁻¹`."""
+@dataclasses.dataclass(frozen=True, eq=False)
+class SensorPoses:
+    """`state_groundtruth_estimate0` as written: the poses of its sensor S in the world
+    frame (metres; quaternions (w, x, y, z) as in the file, not normalized), `T_body_sensor`
+    (its `sensor.yaml`'s `T_BS`; None without that file: S is the body) and the velocity and
+    bias columns (M, 9), NaN for a pose-only file."""
+
+    timestamp_ns: np.ndarray  # (M,)
+    p_world_sensor: np.ndarray  # (M, 3)
+    q_world_sensor_wxyz: np.ndarray  # (M, 4)
+    T_body_sensor: np.ndarray | None
+    extra: np.ndarray  # (M, 9)
+
+    def body_truth(self) -> GroundTruth:
+        """Body poses `T_world_body = T_world_S T_BS⁻¹` (:func:`quaternion_poses`)."""
+        T_world_body = quaternion_poses(self.q_world_sensor_wxyz, self.p_world_sensor)
+        if self.T_body_sensor is not None:
+            T_world_body = T_world_body @ np.linalg.inv(self.T_body_sensor)
+        return GroundTruth(
+            timestamp_ns=self.timestamp_ns,
+            p_world_body=T_world_body[:, :3, 3].copy(),
+            R_world_body=T_world_body[:, :3, :3].copy(),
+            v_world=self.extra[:, 0:3],
+            gyro_bias=self.extra[:, 3:6],
+            accel_bias=self.extra[:, 6:9],
+        )
+
+
+def quaternion_poses(q_wxyz: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Poses (M, 4, 4) from quaternions (M, 4) (w, x, y, z), normalized here, and positions
+    (M, 3), metres. Every reader of poses as quaternions uses this one computation, so that
+    the same numbers give the same poses bit for bit, whatever the file."""
+    norm = np.linalg.norm(q_wxyz, axis=1)
+    return _pose(Rotation.from_quat(q_wxyz / norm[:, None], scalar_first=True).as_matrix(), p)
+
+
+def read_sensor_poses(truth_dir: pathlib.Path) -> SensorPoses:
+    """`truth_dir/data.csv` (full or pose-only rows) and, when present, `sensor.yaml`'s `T_BS`
+    (identity where the file has none); DatasetError (file and line) on bad input."""
     path = truth_dir / "data.csv"
     lines, rows = _read_rows(path, GROUND_TRUTH_COLUMNS, counts=(len(GROUND_TRUTH_COLUMNS), GROUND_TRUTH_POSE_COLUMNS))
     stamps = _timestamps(path, lines, rows)
@@ -445,21 +485,16 @@ def _read_ground_truth(truth_dir: pathlib.Path) -> GroundTruth:
     if off.size:
         i = int(off[0])
         raise DatasetError(path, f"quaternion q_RS (w, x, y, z) has norm {norm[i]:.6g}, expected 1", line=lines[i])
-    T_world_sensor = _pose(Rotation.from_quat(q_wxyz / norm[:, None], scalar_first=True).as_matrix(), values[:, 0:3])
     yaml_path = truth_dir / "sensor.yaml"
-    if yaml_path.exists():
-        T_world_body = T_world_sensor @ np.linalg.inv(read_sensor_transform(yaml_path, default=np.eye(4)))
-    else:
-        T_world_body = T_world_sensor
+    T_body_sensor = read_sensor_transform(yaml_path, default=np.eye(4)) if yaml_path.exists() else None
     extra = values[:, 7:16] if values.shape[1] >= 16 else np.full((len(rows), 9), np.nan)
-    return GroundTruth(
-        timestamp_ns=stamps,
-        p_world_body=T_world_body[:, :3, 3].copy(),
-        R_world_body=T_world_body[:, :3, :3].copy(),
-        v_world=extra[:, 0:3],
-        gyro_bias=extra[:, 3:6],
-        accel_bias=extra[:, 6:9],
-    )
+    return SensorPoses(timestamp_ns=stamps, p_world_sensor=values[:, 0:3], q_world_sensor_wxyz=q_wxyz, T_body_sensor=T_body_sensor, extra=extra)
+
+
+def _read_ground_truth(truth_dir: pathlib.Path) -> GroundTruth:
+    """Body poses from `data.csv` (the pose of the file's sensor S, `T_world_S`) and, when
+    present, `sensor.yaml`'s `T_BS` (identity otherwise): `T_world_body = T_world_S T_BS⁻¹`."""
+    return read_sensor_poses(truth_dir).body_truth()
 
 
 def _decode_quietly(encoded: np.ndarray) -> np.ndarray | None:

@@ -21,8 +21,8 @@ elsewhere):
 
 The readers are a registry (`DATASET_FORMATS`): :func:`open_dataset` opens a path with the
 first format that recognizes its files. TUM-VI's EuRoC-style exports (before EuRoC: they hold
-`mav0` too), EuRoC ASL folders and rendered scene files are its entries; a new format is one
-reader module plus one entry here.
+`mav0` too), EuRoC ASL folders, rendered scene files and ROS1 / ROS2 bags (`rosbag.py`) are
+its entries; a new format is one reader module plus one entry here.
 
 Frames and units: timestamps in nanoseconds; poses `T_world_rect0` (4, 4) in metres, world
 z up; images uint8 grey (H, W) in the pixels of `camera`.
@@ -179,11 +179,31 @@ def _open_scene_file(path: pathlib.Path, options: ReaderOptions) -> StereoSource
         raise DatasetError(e.path, e.reason) from None
 
 
+def _is_ros1_bag(path: pathlib.Path) -> bool:
+    from backend.data.rosbag import is_ros1_bag
+
+    return is_ros1_bag(path)
+
+
+def _is_ros2_bag(path: pathlib.Path) -> bool:
+    from backend.data.rosbag import is_ros2_bag
+
+    return is_ros2_bag(path)
+
+
+def _open_rosbag(path: pathlib.Path, options: ReaderOptions) -> StereoSource:
+    from backend.data.rosbag import RosBagDataset
+
+    return RosBagDataset(path, calib=options.calib, topics=options.topics)
+
+
 EUROC_FORMAT = DatasetFormat("EuRoC ASL folder (holding mav0)", _is_euroc, _open_euroc, "EuRoC folder")
 DATASET_FORMATS: tuple[DatasetFormat, ...] = (
     DatasetFormat("TUM-VI export in EuRoC format (mav0 with mocap0, dso/camchain.yaml)", _is_tumvi, _open_tumvi, "TUM-VI folder"),
     EUROC_FORMAT,
     DatasetFormat("rendered scene file (.json, frames rendered on demand)", _is_scene_file, _open_scene_file, "rendered scene file"),
+    DatasetFormat("ROS1 bag (.bag file; needs --calib)", _is_ros1_bag, _open_rosbag, "ROS1 bag"),
+    DatasetFormat("ROS2 bag (folder with metadata.yaml; needs --calib)", _is_ros2_bag, _open_rosbag, "ROS2 bag"),
 )
 
 

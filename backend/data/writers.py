@@ -33,9 +33,23 @@ def _convert_tumvi(euroc_folder: pathlib.Path, out: pathlib.Path) -> None:
     convert(euroc_folder, out)
 
 
+def _convert_ros1(euroc_folder: pathlib.Path, out: pathlib.Path) -> None:
+    from backend.data.rosbag_writer import convert
+
+    convert(euroc_folder, out, ros2=False)
+
+
+def _convert_ros2(euroc_folder: pathlib.Path, out: pathlib.Path) -> None:
+    from backend.data.rosbag_writer import convert
+
+    convert(euroc_folder, out, ros2=True)
+
+
 DATASET_WRITERS: tuple[DatasetWriter, ...] = (
     DatasetWriter("euroc", "EuRoC ASL folder (mav0)", ("mav0",), None, "--dataset {out}"),
     DatasetWriter("tumvi", "TUM-VI export in EuRoC format (mav0, dso/camchain.yaml; equidistant fisheye images)", ("mav0", "dso"), _convert_tumvi, "--dataset {out}"),
+    DatasetWriter("rosbag1", "ROS1 bag data.bag with its calibration folder calib", ("data.bag", "calib"), _convert_ros1, "--dataset {out}/data.bag --calib {out}/calib"),
+    DatasetWriter("rosbag2", "ROS2 bag folder data (sqlite3) with its calibration folder calib", ("data", "calib"), _convert_ros2, "--dataset {out}/data --calib {out}/calib"),
 )
 
 
