@@ -14,8 +14,8 @@ elsewhere):
   segmenter, the dense check and the VIO reports. Real recordings do not have it.
 
 The readers are a registry (`DATASET_FORMATS`): :func:`open_dataset` opens a path with the
-first format that recognizes its files. EuRoC ASL folders and rendered scene files are its
-entries; a new format is one reader module plus one entry here.
+first format that recognizes its files. EuRoC ASL folders, KITTI odometry sequence folders
+and rendered scene files are its entries; a new format is one reader module plus one entry here.
 
 Frames and units: timestamps in nanoseconds; poses `T_world_rect0` (4, 4) in metres, world
 z up; images uint8 grey (H, W) in the pixels of `camera`.
@@ -129,6 +129,21 @@ def _open_euroc(path: pathlib.Path, options: ReaderOptions) -> StereoSource:
     return EurocDataset(path)
 
 
+KITTI_FILES = ("calib.txt", "times.txt", "image_0")
+
+
+def _is_kitti(path: pathlib.Path) -> bool:
+    """A KITTI odometry sequence folder: at least two of calib.txt, times.txt and image_0/, so
+    that a folder missing one of them is reported by the KITTI reader, naming it."""
+    return path.is_dir() and sum((path / name).exists() for name in KITTI_FILES) >= 2
+
+
+def _open_kitti(path: pathlib.Path, options: ReaderOptions) -> StereoSource:
+    from backend.data.kitti import KittiSequence
+
+    return KittiSequence(path)
+
+
 def _is_scene_file(path: pathlib.Path) -> bool:
     return path.is_file() and path.suffix.lower() == ".json"
 
@@ -145,6 +160,7 @@ def _open_scene_file(path: pathlib.Path, options: ReaderOptions) -> StereoSource
 
 DATASET_FORMATS: tuple[DatasetFormat, ...] = (
     DatasetFormat("EuRoC ASL folder (holding mav0)", _is_euroc, _open_euroc, "EuRoC folder"),
+    DatasetFormat("KITTI odometry sequence folder (sequences/NN: calib.txt, times.txt, image_0, image_1)", _is_kitti, _open_kitti, "KITTI sequence"),
     DatasetFormat("rendered scene file (.json, frames rendered on demand)", _is_scene_file, _open_scene_file, "rendered scene file"),
 )
 
