@@ -27,7 +27,16 @@ class DatasetWriter:
     read_back: str
 
 
-DATASET_WRITERS: tuple[DatasetWriter, ...] = (DatasetWriter("euroc", "EuRoC ASL folder (mav0)", ("mav0",), None, "--dataset {out}"),)
+def _convert_kitti(euroc_folder: pathlib.Path, out: pathlib.Path) -> None:
+    from backend.data.kitti_writer import convert
+
+    convert(euroc_folder, out)
+
+
+DATASET_WRITERS: tuple[DatasetWriter, ...] = (
+    DatasetWriter("euroc", "EuRoC ASL folder (mav0)", ("mav0",), None, "--dataset {out}"),
+    DatasetWriter("kitti", "KITTI odometry sequence (sequences/00, poses/00.txt)", ("sequences", "poses"), _convert_kitti, "--dataset {out}/sequences/00"),
+)
 
 
 def dataset_writer(name: str) -> DatasetWriter:
