@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
+from backend.data.calibration import MAX_RESOLUTION_PX
 from backend.data.errors import DatasetError, read_text
 from backend.data.euroc import _decode_quietly
 from backend.data.motion import ImuData, ImuNoise
@@ -189,7 +190,7 @@ def camera_from_projections(path: pathlib.Path, projections: dict[str, np.ndarra
         raise DatasetError(path, f"degenerate camera: focal lengths P0 fx {fx:g}, fy {fy:g}, P1 fx {P1[0, 0]:g} must be above 0")
     baseline = float(-P1[0, 3] / P1[0, 0])
     if not baseline > 0.0:
-        raise DatasetError(path, f"P1 gives a baseline of {baseline:g} m (-P1[0,3] / P1[0,0]); expected the right camera to the left's right (P1[0,3] < 0)")
+        raise DatasetError(path, f"P1 gives a baseline of {baseline + 0.0:g} m (-P1[0,3] / P1[0,0]); expected the right camera to the left's right (P1[0,3] < 0)")
     return PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, baseline=baseline)
 
 
@@ -249,12 +250,15 @@ def _image_files(folder: pathlib.Path, count: int, times_path: pathlib.Path) -> 
 
 
 def _image_size(path: pathlib.Path) -> tuple[int, int]:
-    """(width, height) of an image, from its header."""
+    """(width, height) of an image, from its header; at most MAX_RESOLUTION_PX per side."""
     try:
         with Image.open(path) as image:
-            return int(image.size[0]), int(image.size[1])
+            width, height = int(image.size[0]), int(image.size[1])
     except (UnidentifiedImageError, OSError) as error:
         raise DatasetError(path, f"not a readable image ({getattr(error, 'strerror', None) or error})") from None
+    if not (0 < width <= MAX_RESOLUTION_PX and 0 < height <= MAX_RESOLUTION_PX):
+        raise DatasetError(path, f"image is {width}x{height}; expected at most {MAX_RESOLUTION_PX} pixels per side")
+    return width, height
 
 
 def _load_gray(path: pathlib.Path, *, size: tuple[int, int]) -> np.ndarray:

@@ -52,29 +52,20 @@ def write_images(source: EurocDataset, sequence: pathlib.Path) -> None:
             Image.fromarray(image).save(folder / f"{i:06d}.png", compress_level=1)
 
 
-def baseline_offset(fx: float, baseline: float) -> float:
-    """P1[0,3] (pixels x metres) for which the reader's `-P1[0,3] / P1[0,0]` is `baseline`
-    exactly: `-fx * baseline`, or a neighbouring float where that product's rounding would
-    change the quotient."""
-    offset = -fx * baseline
-    for candidate in (offset, np.nextafter(offset, np.inf), np.nextafter(offset, -np.inf)):
-        if -float(candidate) / fx == baseline:
-            return float(candidate)
-    return offset
-
-
 def _row(values: np.ndarray) -> str:
     return " ".join(repr(float(x)) for x in np.asarray(values).ravel())
 
 
 def calib_text(camera: PinholeCamera) -> str:
     """calib.txt of the rectified stereo `camera`: P0 its projection, P1 the right camera's
-    (`P1[0,3] = -fx * baseline`). The render has no colour cameras: P2 = P0 and P3 = P1 so
-    that tools expecting four projections find them. Tr (velodyne to cam0) is the identity:
-    there is no velodyne. Numbers in full precision (repr)."""
+    (`P1[0,3] = -fx * baseline`, from which the reader's `-P1[0,3] / P1[0,0]` gives the
+    baseline to the last place, exactly for the render's 0.11 m at 458 px; for about one
+    value in nine no float P1[0,3] gives it exactly). The render has no colour cameras:
+    P2 = P0 and P3 = P1, so that tools expecting four projections find them. Tr (velodyne
+    to cam0) is the identity: there is no velodyne. Numbers in full precision (repr)."""
     P0 = np.array([[camera.fx, 0.0, camera.cx, 0.0], [0.0, camera.fy, camera.cy, 0.0], [0.0, 0.0, 1.0, 0.0]])
     P1 = P0.copy()
-    P1[0, 3] = baseline_offset(camera.fx, camera.baseline)
+    P1[0, 3] = -camera.fx * camera.baseline
     Tr = np.eye(4)[:3]
     return "".join(f"{key}: {_row(P)}\n" for key, P in (("P0", P0), ("P1", P1), ("P2", P0), ("P3", P1), ("Tr", Tr)))
 
