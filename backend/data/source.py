@@ -21,8 +21,9 @@ elsewhere):
 
 The readers are a registry (`DATASET_FORMATS`): :func:`open_dataset` opens a path with the
 first format that recognizes its files. TUM-VI's EuRoC-style exports (before EuRoC: they hold
-`mav0` too), EuRoC ASL folders, rendered scene files and ROS1 / ROS2 bags (`rosbag.py`) are
-its entries; a new format is one reader module plus one entry here.
+`mav0` too), EuRoC ASL folders, KITTI odometry sequence folders, rendered scene files and
+ROS1 / ROS2 bags (`rosbag.py`) are its entries; a new format is one reader module plus one
+entry here.
 
 Frames and units: timestamps in nanoseconds; poses `T_world_rect0` (4, 4) in metres, world
 z up; images uint8 grey (H, W) in the pixels of `camera`.
@@ -165,6 +166,21 @@ def _open_tumvi(path: pathlib.Path, options: ReaderOptions) -> StereoSource:
     return TumviDataset(path)
 
 
+KITTI_FILES = ("calib.txt", "times.txt", "image_0")
+
+
+def _is_kitti(path: pathlib.Path) -> bool:
+    """A KITTI odometry sequence folder: at least two of calib.txt, times.txt and image_0/, so
+    that a folder missing one of them is reported by the KITTI reader, naming it."""
+    return path.is_dir() and sum((path / name).exists() for name in KITTI_FILES) >= 2
+
+
+def _open_kitti(path: pathlib.Path, options: ReaderOptions) -> StereoSource:
+    from backend.data.kitti import KittiSequence
+
+    return KittiSequence(path)
+
+
 def _is_scene_file(path: pathlib.Path) -> bool:
     return path.is_file() and path.suffix.lower() == ".json"
 
@@ -201,6 +217,7 @@ EUROC_FORMAT = DatasetFormat("EuRoC ASL folder (holding mav0)", _is_euroc, _open
 DATASET_FORMATS: tuple[DatasetFormat, ...] = (
     DatasetFormat("TUM-VI export in EuRoC format (mav0 with mocap0, dso/camchain.yaml)", _is_tumvi, _open_tumvi, "TUM-VI folder"),
     EUROC_FORMAT,
+    DatasetFormat("KITTI odometry sequence folder (sequences/NN: calib.txt, times.txt, image_0, image_1)", _is_kitti, _open_kitti, "KITTI sequence"),
     DatasetFormat("rendered scene file (.json, frames rendered on demand)", _is_scene_file, _open_scene_file, "rendered scene file"),
     DatasetFormat("ROS1 bag (.bag file; needs --calib)", _is_ros1_bag, _open_rosbag, "ROS1 bag"),
     DatasetFormat("ROS2 bag (folder with metadata.yaml; needs --calib)", _is_ros2_bag, _open_rosbag, "ROS2 bag"),

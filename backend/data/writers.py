@@ -33,6 +33,12 @@ def _convert_tumvi(euroc_folder: pathlib.Path, out: pathlib.Path) -> None:
     convert(euroc_folder, out)
 
 
+def _convert_kitti(euroc_folder: pathlib.Path, out: pathlib.Path) -> None:
+    from backend.data.kitti_writer import convert
+
+    convert(euroc_folder, out)
+
+
 def _convert_ros1(euroc_folder: pathlib.Path, out: pathlib.Path) -> None:
     from backend.data.rosbag_writer import convert
 
@@ -47,6 +53,7 @@ def _convert_ros2(euroc_folder: pathlib.Path, out: pathlib.Path) -> None:
 
 DATASET_WRITERS: tuple[DatasetWriter, ...] = (
     DatasetWriter("euroc", "EuRoC ASL folder (mav0)", ("mav0",), None, "--dataset {out}"),
+    DatasetWriter("kitti", "KITTI odometry sequence (sequences/00, poses/00.txt)", ("sequences", "poses"), _convert_kitti, "--dataset {out}/sequences/00"),
     DatasetWriter("tumvi", "TUM-VI export in EuRoC format (mav0, dso/camchain.yaml; equidistant fisheye images)", ("mav0", "dso"), _convert_tumvi, "--dataset {out}"),
     DatasetWriter("rosbag1", "ROS1 bag data.bag with its calibration folder calib", ("data.bag", "calib"), _convert_ros1, "--dataset {out}/data.bag --calib {out}/calib"),
     DatasetWriter("rosbag2", "ROS2 bag folder data (sqlite3) with its calibration folder calib", ("data", "calib"), _convert_ros2, "--dataset {out}/data --calib {out}/calib"),
