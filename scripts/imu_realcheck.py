@@ -43,6 +43,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np
 from scipy.signal import savgol_filter
 
+from backend.data.calibration import read_imu_yaml
 from backend.data.euroc import _read_ground_truth, _read_imu
 from backend.data.motion import GRAVITY_WORLD, ImuData
 from backend.geometry import so3
@@ -64,7 +65,7 @@ def load(data: pathlib.Path) -> tuple[ImuData, object, dict]:
     """IMU samples, ground truth with fitted velocities, and the IMU calibration, read by
     the EuRoC reader's own CSV / YAML functions (the dataset class needs images)."""
     mav0 = data / "mav0"
-    calibration, imu, missing = _read_imu(mav0 / "imu0")
+    calibration, imu, missing = _read_imu(mav0 / "imu0", lambda imu_dir: read_imu_yaml(imu_dir / "sensor.yaml"))
     if imu is None:
         raise SystemExit(f"imu_realcheck: {missing[0]}: {missing[1]}")
     if not np.allclose(calibration.T_body_imu, np.eye(4)):
