@@ -1,5 +1,5 @@
 """The Sweep tab: a `coplanar sweep`'s results beside the usual views (`serve --sweep DIR`):
-its Table II-shaped summary (`results.md`), its plots (ATE per variant across runs, time
+its Table II-shaped summary (`table.md`), its plots (ATE per variant across runs, time
 per stage) and how many runs finished or failed (`results.json`). Reload reads the folder
 again (a sweep still running adds runs). Without `--sweep` the tab says how to open one."""
 
@@ -19,7 +19,7 @@ PLOTS: tuple[tuple[str, str], ...] = (("ate_by_variant.png", "ATE per variant"),
 
 
 def sweep_summary(folder: pathlib.Path) -> str:
-    """Markdown: the runs' status counts (results.json) and the table (results.md)."""
+    """Markdown: the runs' status counts (results.json) and the table (table.md)."""
     lines = [f"**Sweep** `{folder}`"]
     try:
         rows = json.loads((folder / "results.json").read_text())
@@ -30,9 +30,9 @@ def sweep_summary(folder: pathlib.Path) -> str:
     except (OSError, ValueError) as e:
         lines.append(f"*results.json: {getattr(e, 'strerror', None) or e}*")
     try:
-        lines.append((folder / "results.md").read_text())
+        lines.append((folder / "table.md").read_text())
     except OSError:
-        lines.append("*no results.md yet*")
+        lines.append("*no table.md yet*")
     return "\n\n".join(lines)
 
 

@@ -25,8 +25,8 @@ def _free_port() -> int:
 
 def _sweep(folder: pathlib.Path, statuses: list[str]) -> None:
     folder.mkdir(exist_ok=True)
-    (folder / "results.json").write_text(json.dumps({"runs": [{"scene": "room", "variant": "PL-w", "status": s} for s in statuses]}))
-    (folder / "results.md").write_text("| sequence | P-wo | PL-w |\n|---|---|---|\n| room | 1.20 | 0.90 |\n")
+    (folder / "results.json").write_text(json.dumps([{"scene": "room", "variant": "PL-w", "status": s} for s in statuses]))
+    (folder / "table.md").write_text("| sequence | P-wo | PL-w |\n|---|---|---|\n| room | 1.20 | 0.90 |\n")
     Image.fromarray(np.full((40, 60, 3), 200, np.uint8)).save(folder / "ate_by_variant.png")
 
 
@@ -38,21 +38,21 @@ def _debugger(settings: ViewerSettings) -> Debugger:
 
 def test_a_sweep_is_shown_reloaded_and_kept_through_steps_and_reset(tmp_path: pathlib.Path) -> None:
     folder = tmp_path / "sweep"
-    _sweep(folder, ["done", "failed"])
+    _sweep(folder, ["ok", "failed"])
     d = _debugger(ViewerSettings(compare=False, plots=False, sweep=folder))
     try:
         tab = d._tab(SweepTab)
         text = tab.markdown.content
-        assert "2 runs: 1 done, 1 failed" in text and "| room | 1.20 | 0.90 |" in text
+        assert "2 runs: 1 failed, 1 ok" in text and "| room | 1.20 | 0.90 |" in text
         assert tab.images["ate_by_variant.png"].visible and not tab.images["time_by_stage.png"].visible
-        _sweep(folder, ["done", "done", "done"])  # the sweep goes on
+        _sweep(folder, ["ok", "ok", "ok"])  # the sweep goes on
         tab.read()
-        assert "3 runs: 3 done" in tab.markdown.content
+        assert "3 runs: 3 ok" in tab.markdown.content
         d.submit(Command.STEP)
         d.wait_idle()
         d.submit(Command.RESET)
         d.wait_idle()
-        assert "3 runs: 3 done" in tab.markdown.content
+        assert "3 runs: 3 ok" in tab.markdown.content
     finally:
         d.stop()
 
