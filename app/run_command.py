@@ -18,7 +18,8 @@ Outputs in `--out DIR`:
   `points.ply` (point cloud), `lines.ply` (line set), `planes.ply` (triangle mesh with
   `plane_id`), `cameras.ply` (keyframe frustums).
 
-The files are written into a hidden staging folder inside `--out` and moved into place only
+The run itself is `backend.headless.run.run_headless`, which `coplanar sweep` calls too. The
+files are written into a hidden staging folder inside `--out` and moved into place only
 when all are written (`backend.common.atomic`): a full disk, an error or Ctrl-C / SIGTERM
 during the run leaves `--out` as it was (an earlier run's files there stay whole), and the
 command says so.
@@ -27,13 +28,9 @@ command says so.
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import pathlib
-import sys
 
 DEFAULT_DURATION_S = 30.0
-# Stages the stereo engine reports as means per frame within a step (the rest: per keyframe).
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -58,285 +55,43 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run, history=1)
 
 
-def _prepare_out(out: pathlib.Path) -> None:
-    from app.errors import UsageError
-    from backend.common.atomic import make_folder
-
-    try:
-        if out.exists() and not out.is_dir():
-            raise UsageError(f"--out {out}: exists and is not a folder")
-        make_folder(out)
-        probe = out / ".coplanar-write-test"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as e:
-        raise UsageError(f"--out {out}: cannot write there: {e.strerror or e}") from None
-
-
-def _json_safe(value):
-    """`value` with every non-finite float replaced by None (JSON has no NaN)."""
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def _write_staged(out: pathlib.Path, write) -> None:
-    """`write(folder)` into a staging folder inside `out`, moved into `out` when it returns;
-    a failed write (a full disk) is one line naming the file, and nothing is moved."""
-    from app.errors import UsageError
-    from backend.common.atomic import staged_folder
-
-    stage = None
-    try:
-        with staged_folder(out) as stage:
-            write(stage)
-    except OSError as e:
-        if e.filename:
-            detail = f"{pathlib.Path(e.filename).name}: {e.strerror or e}"
-        elif e.strerror:
-            detail = f"the outputs: {e.strerror}"
-        else:
-            detail = str(e).replace(f"{stage}/", "") if stage is not None else str(e)
-        raise UsageError(f"--out {out}: cannot write {detail}; nothing was written there") from None
-
-
-def _write_outputs(out: pathlib.Path, snapshot, metrics: dict, *, frames, groundtruth) -> None:
-    """trajectory.txt (`frames`: every tracked frame), keyframes.txt, groundtruth.txt,
-    metrics.json, the combined map.ply and the typed points.ply, lines.ply, planes.ply and
-    cameras.ply (backend.export.map_files)."""
-    from backend.common.optional import MissingLibraryError
-    from backend.export.map_files import write_map_files
-    from backend.export.ply import write_ply
-    from backend.export.tum import write_tum
-
-    write_tum(out / "trajectory.txt", frames)
-    write_tum(out / "keyframes.txt", snapshot.estimate)
-    write_tum(out / "groundtruth.txt", groundtruth)
-    (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2, allow_nan=False) + "\n")
-    try:
-        write_map_files(snapshot, out)
-    except MissingLibraryError as e:  # the run's results stay: the combined map without open3d
-        write_ply(out / "map.ply", snapshot)
-        print(f"warning: {e}; wrote map.ply only", file=sys.stderr)
-
-
-def _no_ground_truth(estimate):
-    import numpy as np
-
-    from backend.pipeline.snapshot import Trajectory
-
-    n = len(estimate)
-    return Trajectory.of(np.asarray(estimate.timestamp_ns), np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan))
-
-
-def _cm(value: float) -> str:
-    return f"{value:.2f} cm" if math.isfinite(value) else "n/a (no ground truth)"
-
-
 def run(args: argparse.Namespace) -> int:
-    from app.sources import build_engine
-    from backend.pipeline.sim_engine import SimEngine
+    """Check the options, run the engine (backend.headless.run_headless) and print its
+    summary line; expected failures are UsageError (one line, exit code 2)."""
+    from app.errors import UsageError
+    from app.sources import engine_config, segmenter_error
+    from backend.common.atomic import InterruptedAfterCommit
+    from backend.frontend.segmenters import SegmenterError
+    from backend.headless.run import OutputError, RunError, run_headless
 
     if getattr(args, "dense", False):
         from backend.common.optional import require_open3d
 
         require_open3d()  # before the run: a missing library is one line, not a lost run
 
-    from backend.common.atomic import InterruptedAfterCommit
-
-    engine = build_engine(args, headless=True)
+    config = engine_config(args, headless=True)
+    if args.keyframes is not None and args.keyframes < 1:
+        raise UsageError(f"--keyframes {args.keyframes}: must be at least 1")
+    out: pathlib.Path = args.out
     try:
-        created = not args.out.exists()
-    except OSError:  # a name the file system refuses: _prepare_out says so
+        created = not out.exists()
+    except OSError:  # a name the file system refuses: the run says so
         created = False
     try:
-        if isinstance(engine, SimEngine):
-            return _run_simulation(args, engine)
-        return _run_stereo(args, engine)
+        result = run_headless(config, out, keyframes=args.keyframes, dense=getattr(args, "dense", False))
+    except SegmenterError as e:
+        raise segmenter_error(e, config) from None
+    except OutputError as e:
+        raise UsageError(f"--out {e}") from None
+    except RunError as e:
+        raise UsageError(str(e)) from None
     except InterruptedAfterCommit:
         raise
     except KeyboardInterrupt:
-        earlier = args.out.is_dir() and any(not p.name.startswith(".") for p in args.out.iterdir())
-        raise KeyboardInterrupt(f"nothing written to {args.out}" + ("; the files already there are as they were" if earlier else "")) from None
+        earlier = out.is_dir() and any(not p.name.startswith(".") for p in out.iterdir())
+        raise KeyboardInterrupt(f"nothing written to {out}" + ("; the files already there are as they were" if earlier else "")) from None
     finally:
-        if created and args.out.is_dir() and not any(args.out.iterdir()):
-            args.out.rmdir()  # a failed run leaves no empty folder it made (its parents stay)
-
-
-def _run_simulation(args: argparse.Namespace, engine) -> int:
-    import numpy as np
-    from tqdm import tqdm
-
-    from app.errors import UsageError
-    from backend.eval import sequences
-    from backend.eval.run_metrics import trajectory_metrics
-    from backend.pipeline.snapshot import Trajectory
-
-    n = args.keyframes if args.keyframes is not None else len(sequences.make_world(engine.settings.sequence, seed=args.seed).t_world_camera)
-    if n < 1:
-        raise UsageError(f"--keyframes {n}: must be at least 1")
-    _prepare_out(args.out)
-    timings: dict[str, list[float]] = {}
-    snapshot = None
-    with tqdm(total=n, desc=f"run {engine.source}", unit="kf", file=sys.stderr, disable=None) as bar:
-        for _ in range(n):
-            snapshot = engine.step()
-            for stage, ms in snapshot.report.timing_ms.items():
-                timings.setdefault(stage, []).append(ms)
-            bar.update(1)
-    assert snapshot is not None
-    mean = {k: float(np.mean(v)) for k, v in timings.items()}
-    # No images, no frames between keyframes: the trajectory is the keyframes'.
-    gt = snapshot.ground_truth if snapshot.ground_truth is not None else _no_ground_truth(snapshot.estimate)
-    accuracy, evaluated = trajectory_metrics(snapshot.estimate, gt)
-    metrics = {
-        "source": engine.source,
-        "variant": args.variant,
-        "trajectory_poses": "keyframes (a Monte-Carlo world has no frames between keyframes)",
-        "frames": n,
-        "frames_tracked": len(snapshot.estimate),
-        "keyframes": n,
-        **accuracy,
-        "keyframe_ate_rmse_cm": snapshot.metrics.ate_cm,
-        "planes": len(snapshot.planes),
-        "points": len(snapshot.points),
-        "lines": len(snapshot.lines),
-        # DESIGN §7's stages; the simulation has no images, so no feature detection and
-        # matching or segmentation: those are null. Means over keyframes, milliseconds.
-        "timing_ms": {
-            "point_dm": None,
-            "line_dm": None,
-            "plane_seg": None,
-            "plane_fit": mean["detection"],
-            "optimization": mean["optimization"],
-            "total_per_frame": mean["total"],
-            "all_stages": mean,
-        },
-    }
-    _write_staged(args.out, lambda folder: _write_outputs(folder, snapshot, metrics, frames=snapshot.estimate, groundtruth=Trajectory.of(*evaluated)))
-    print(
-        f"{n} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned), RMSE {_cm(metrics['rmse_cm'])}, "
-        f"{len(snapshot.planes)} planes; {mean['total']:.1f} ms per keyframe; "
-        f"wrote {args.out}/trajectory.txt (keyframes), keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply"
-    )
-    return 0
-
-
-def dense_mesh(source, snapshot, path: pathlib.Path) -> dict:
-    """`--dense`: every keyframe's depth fused at its final estimated pose into a TSDF
-    (backend.eval.dense), the mesh written to `path`; its size, the fusion time per keyframe
-    and, on rendered scenes, the distance of its vertices to the true planes (cm)."""
-    import numpy as np
-
-    from backend.data.source import RenderedTruth
-    from backend.eval.dense import distance_to_planes, fuse_keyframes, keyframe_frames, map_bounds
-
-    frames = keyframe_frames(source, snapshot.estimate.timestamp_ns)
-    t = np.asarray(snapshot.estimate.t_world_camera)
-    fusion = fuse_keyframes(source, frames, np.asarray(snapshot.estimate.R_world_camera), t, map_bounds(snapshot.points.p_world, t))
-    mesh = fusion.mesh()
-    o3d = fusion._o3d
-    from backend.common.atomic import atomic_path
-    from backend.common.native_output import native_stderr_silenced
-
-    with atomic_path(path) as tmp, native_stderr_silenced():
-        if not o3d.io.write_triangle_mesh(str(tmp), mesh):
-            raise OSError(f"{path}: open3d could not write the mesh (disk full?)")
-    out: dict[str, object] = {
-        "keyframes_fused": fusion.keyframes,
-        "fusion_ms_per_keyframe": fusion.time_ms / max(fusion.keyframes, 1),
-        "voxel_m": fusion.voxel_m,
-        "vertices": len(mesh.vertices),
-        "triangles": len(mesh.triangles),
-        "distance_to_true_planes_cm": None,
-    }
-    if isinstance(source, RenderedTruth) and len(mesh.vertices):
-        d = 100.0 * distance_to_planes(np.asarray(mesh.vertices), source.plane_table)
-        out["distance_to_true_planes_cm"] = {"median": float(np.median(d)), "p90": float(np.percentile(d, 90)), "within_2cm": float(np.mean(d < 2.0))}
-    return out
-
-
-def _run_stereo(args: argparse.Namespace, engine) -> int:
-    from tqdm import tqdm
-
-    from app.errors import UsageError
-    from backend.eval.run_metrics import stereo_timing, trajectory_metrics, vio_metrics
-    from backend.pipeline.engine import EndOfSequence
-    from backend.pipeline.snapshot import Trajectory
-
-    if args.keyframes is not None and args.keyframes < 1:
-        raise UsageError(f"--keyframes {args.keyframes}: must be at least 1")
-    _prepare_out(args.out)
-    total_frames = len(engine.data_source)
-    steps: list[tuple[int, dict[str, float]]] = []
-    messages: list[str] = []
-    lost = reinitializations = 0
-    reasons: dict[str, int] = {}
-    snapshot = None
-    bar = tqdm(total=total_frames, desc=f"run {args.variant}", unit="frame", file=sys.stderr, disable=None, dynamic_ncols=True)
-    engine.on_frame = lambda _index: bar.update(1)
-    try:
-        while args.keyframes is None or len(steps) < args.keyframes:
-            try:
-                snapshot = engine.step()
-            except EndOfSequence:
-                break
-            tracking = snapshot.tracking
-            steps.append((tracking.frames, dict(snapshot.report.timing_ms)))
-            lost += tracking.lost_frames
-            reinitializations += tracking.reinitializations
-            reasons[tracking.keyframe_reason] = reasons.get(tracking.keyframe_reason, 0) + 1
-            if snapshot.message:
-                messages.append(f"keyframe {snapshot.keyframe}: {snapshot.message}")
-                bar.write(f"keyframe {snapshot.keyframe}: {snapshot.message}", file=sys.stderr)
-    except BaseException:
-        bar.leave = False  # an error line (or the interruption) follows: no half-drawn bar above it
-        raise
-    finally:
-        bar.close()
-        engine.on_frame = None
-    if snapshot is None:
-        raise UsageError(f"{engine.source}: no keyframe in {engine.frames} frames")
-    frames = engine.frame_trajectory()
-    accuracy, evaluated = trajectory_metrics(frames.estimate, frames.ground_truth)
-    metrics = {
-        "source": engine.source,
-        "variant": args.variant,
-        "trajectory_poses": "tracked frames",
-        "frames": engine.frames,
-        "frames_tracked": len(frames),
-        "keyframes": len(snapshot.estimate),
-        **accuracy,
-        "keyframe_ate_rmse_cm": snapshot.metrics.ate_cm,
-        "keyframe_rmse_cm": snapshot.metrics.rmse_cm,
-        "planes": len(snapshot.planes),
-        "points": len(snapshot.points),
-        "lines": len(snapshot.lines),
-        "lost_frames": lost,
-        "reinitializations": reinitializations,
-        "keyframe_reasons": reasons,
-        "timing_ms": stereo_timing(steps),
-        "messages": messages,
-    }
-    if snapshot.imu is not None:
-        metrics["mode"] = "vio"
-        metrics["vio"] = vio_metrics(snapshot, frames)
-
-    def write(folder: pathlib.Path) -> None:
-        if getattr(args, "dense", False):
-            metrics["dense"] = dense_mesh(engine.data_source, snapshot, folder / "mesh.ply")
-        _write_outputs(folder, snapshot, metrics, frames=frames.estimate, groundtruth=Trajectory.of(*evaluated))
-
-    _write_staged(args.out, write)
-    per_frame = metrics["timing_ms"]["total_per_frame"]
-    print(
-        f"{engine.frames} frames, {metrics['keyframes']} keyframes, {args.variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned, "
-        f"{metrics['frames_evaluated']} frames), RMSE {_cm(metrics['rmse_cm'])}, {len(snapshot.planes)} planes, {lost} lost frames, "
-        f"{reinitializations} re-initializations; {per_frame:.1f} ms per frame; "
-        f"wrote {args.out}/trajectory.txt, keyframes.txt, groundtruth.txt, metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply"
-    )
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # a failed run leaves no empty folder it made (its parents stay)
+    print(result.summary)
     return 0
