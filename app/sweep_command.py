@@ -85,9 +85,10 @@ def _print_row(row: dict[str, Any]) -> None:
 
     if row["status"] != "ok":
         tqdm.write(f"failed {row['run_id']}: {row['error']}", file=sys.stdout)
-        return
-    ate = "n/a" if row["ate_rmse_cm"] is None else f"{row['ate_rmse_cm']:.2f} cm"
-    tqdm.write(f"ok     {row['run_id']}: ATE {ate}, {row['lost_frames']} lost frames, {row['keyframes']} keyframes, {row['wall_s']:.1f} s", file=sys.stdout)
+    else:
+        ate = "n/a" if row["ate_rmse_cm"] is None else f"{row['ate_rmse_cm']:.2f} cm"
+        tqdm.write(f"ok     {row['run_id']}: ATE {ate}, {row['lost_frames']} lost frames, {row['keyframes']} keyframes, {row['wall_s']:.1f} s", file=sys.stdout)
+    sys.stdout.flush()  # a line per run as it ends, also into a file or a pipe
 
 
 def run(args: argparse.Namespace) -> int:

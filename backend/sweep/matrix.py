@@ -204,7 +204,8 @@ def matrix_from(file_values: Mapping[str, object] | None, option_values: Mapping
     (`option_values`, those given) taking their place where both name an axis."""
     fields: dict[str, Any] = {}
     if file_values is not None:
-        fields.update(parse_axes(file_values, where=f"{file}: ", base=None if file is None else file.parent))
+        kept = {key: value for key, value in file_values.items() if key not in option_values}  # not checked: replaced
+        fields.update(parse_axes(kept, where=f"{file}: ", base=None if file is None else file.parent))
     fields.update(parse_axes(option_values))
     return SweepMatrix(**fields)
 

@@ -98,3 +98,13 @@ def test_two_datasets_of_one_name_are_refused(tmp_path: pathlib.Path) -> None:
         (tmp_path / parent / "seq").mkdir(parents=True)
     with pytest.raises(MatrixError, match="share the folder seq_"):
         matrix_from(None, {"datasets": f"{tmp_path}/a/seq,{tmp_path}/b/seq"}).runs()
+
+
+def test_an_axis_the_options_replace_is_not_checked_in_the_file(tmp_path: pathlib.Path) -> None:
+    config = tmp_path / "sweep.toml"
+    config.write_text('datasets = ["gone/MH_01"]\nvariants = "all"\n')
+    (tmp_path / "here").mkdir()
+    runs = matrix_from(read_toml(config), {"datasets": str(tmp_path / "here")}, file=config).runs()
+    assert [r.input_name for r in runs] == ["here"] * 6
+    with pytest.raises(MatrixError, match=r"sweep.toml: datasets: gone/MH_01: no such file"):
+        matrix_from(read_toml(config), {}, file=config)
