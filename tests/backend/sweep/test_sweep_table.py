@@ -62,3 +62,9 @@ def test_plots_are_written(tmp_path: pathlib.Path) -> None:
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in paths)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ate_by_variant.png", "time_by_stage.png"]  # no temporary file left
     write_plots(tmp_path / ".." / tmp_path.name, [failed_row(_spec("room", "P-wo"), "x")])  # nothing finished: empty plots, no error
+
+
+def test_vio_leads_with_the_ate_from_its_initialization() -> None:
+    spec = RunSpec("room", None, Variant.PL_W, "vio", "learned", 0, duration_s=30.0)
+    text = table_markdown([ok_row(spec, {**_metrics(9.0, 10), "vio": {"initialized": True, "ate_after_init_cm": 1.5}}, wall_s=30.0)])
+    assert text.index("| room | 1.50 |") < text.index("| room | 9.00 |") and "from the first VIO initialization on" in text
