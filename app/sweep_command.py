@@ -19,6 +19,7 @@ bad options (one line, nothing run).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import pathlib
 import sys
@@ -93,8 +94,7 @@ def _print_row(row: dict[str, Any]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from app.errors import UsageError
-    from backend.headless.run import OutputError, prepare_out
-    from backend.sweep.runner import RayUnavailable, finished_row, ray_runs, ray_session, run_sweep, serial_runs
+    from backend.sweep.runner import RayUnavailable, Runs, finished_row, ray_runs, ray_session, run_sweep, serial_runs
 
     _check_execution(args)
     specs = matrix_runs(args)
@@ -104,18 +104,17 @@ def run(args: argparse.Namespace) -> int:
             print(f"{'finished' if finished_row(spec, out) is not None else 'to run':8s} {spec.run_id}")
         return 0
     try:
-        prepare_out(out)
-    except OutputError as e:
-        raise UsageError(f"--out {e}") from None
-    try:
-        if args.serial:
-            print(f"sweep: {len(specs)} runs in this process (--serial), into {out}", file=sys.stderr)
-            outcome = run_sweep(specs, out, runs=serial_runs, on_row=_print_row)
-        else:
-            with ray_session(address=args.address, workers=args.workers) as resources:
-                where = f"the Ray cluster at {args.address}" if args.address else "Ray on this machine"
-                print(f"sweep: {len(specs)} runs on {where} ({resources.get('CPU', 0):g} CPUs), into {out}", file=sys.stderr)
-                outcome = run_sweep(specs, out, runs=functools.partial(ray_runs, workers=args.workers), on_row=_print_row)
+        with contextlib.ExitStack() as stack:
+            if args.serial:
+                runs: Runs = serial_runs
+                where = "in this process (--serial)"
+            else:
+                cluster = stack.enter_context(ray_session(address=args.address, workers=args.workers))  # before --out is made
+                runs = functools.partial(ray_runs, workers=args.workers)
+                where = f"on {cluster.where} ({cluster.cpus:g} CPUs)"
+            _prepare(out)
+            print(f"sweep: {len(specs)} runs {where}, into {out}", file=sys.stderr)
+            outcome = run_sweep(specs, out, runs=runs, on_row=_print_row)
     except RayUnavailable as e:
         raise UsageError(str(e)) from None
     except KeyboardInterrupt:
@@ -123,6 +122,16 @@ def run(args: argparse.Namespace) -> int:
     _write_results(out, outcome.rows)
     print(f"{len(specs)} runs: {outcome.ran} ran, {outcome.resumed} already finished, {outcome.failed} failed; wrote {out}/{', '.join(OUTPUTS)}")
     return 1 if outcome.failed else 0
+
+
+def _prepare(out: pathlib.Path) -> None:
+    from app.errors import UsageError
+    from backend.headless.run import OutputError, prepare_out
+
+    try:
+        prepare_out(out)
+    except OutputError as e:
+        raise UsageError(f"--out {e}") from None
 
 
 def _write_results(out: pathlib.Path, rows: list[dict[str, Any]]) -> None:

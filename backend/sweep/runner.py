@@ -16,7 +16,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import os
 import pathlib
+import socket
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -119,29 +121,56 @@ def ray_runs(specs: Sequence[RunSpec], out: pathlib.Path, *, workers: int | None
                 ray.cancel(ref, force=True)
 
 
+@dataclasses.dataclass(frozen=True)
+class RayCluster:
+    """Where a sweep's tasks run (`where`, for the user) and the CPUs Ray has there."""
+
+    where: str
+    cpus: float
+
+
 @contextlib.contextmanager
-def ray_session(*, address: str | None = None, workers: int | None = None) -> Iterator[dict[str, float]]:
-    """Ray started on this machine with `workers` CPUs (None: all of them), or connected to the
-    cluster at `address`; yields the cluster's resources (`CPU`: how many runs at once) and
-    shuts Ray down after. RayUnavailable (one line) when Ray is missing or cannot start."""
+def ray_session(*, address: str | None = None, workers: int | None = None) -> Iterator[RayCluster]:
+    """A new Ray instance on this machine with `workers` CPUs (None: all of them), or the
+    cluster at `address` (`RAY_ADDRESS` when None and set; `auto`: the one `ray start` started
+    here); shut down (or disconnected from) after. RayUnavailable (one line) when Ray is
+    missing or cannot start or connect."""
     import logging
 
     try:
         import ray
     except ImportError:
         raise RayUnavailable("Ray is not installed (pip install ray, as pyproject.toml pins it), or run with --serial") from None
+    address = address or os.environ.get("RAY_ADDRESS") or None
     options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR}
     if address is None:
-        options["num_cpus"] = workers
+        options.update(address="local", num_cpus=workers)  # "local": a new instance, never a stale ray_current_cluster
+        where = "Ray on this machine"
+    else:
+        check_reachable(address)
+        options["address"] = address
+        where = f"the Ray cluster at {address}"
     try:
-        ray.init(address=address, **options)
+        ray.init(**options)
     except Exception as e:  # ConnectionError, RuntimeError, ValueError: Ray's reasons vary
-        where = f"the Ray cluster at {address}" if address else "Ray on this machine"
         raise RayUnavailable(f"cannot start {where}: {reason(e)} (--serial runs without Ray)") from None
     try:
-        yield {k: float(v) for k, v in ray.cluster_resources().items()}
+        yield RayCluster(where=where, cpus=float(ray.cluster_resources().get("CPU", 0.0)))
     finally:
         ray.shutdown()
+
+
+def check_reachable(address: str, *, timeout_s: float = 5.0) -> None:
+    """RayUnavailable at once when `address` (`HOST:PORT`, `ray://HOST:PORT`) names a port
+    nothing answers on within `timeout_s` seconds: Ray itself retries for minutes. Other forms
+    (`auto`) are Ray's to judge."""
+    host, sep, port = address.split("://", 1)[-1].rpartition(":")
+    if not sep or not host or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as e:
+        raise RayUnavailable(f"cannot reach the Ray cluster at {address}: {e.strerror or e} (--serial runs without Ray)") from None
 
 
 def run_sweep(specs: Sequence[RunSpec], out: pathlib.Path, *, runs: Runs, progress: bool = True, on_row: Callable[[Row], None] | None = None) -> SweepOutcome:

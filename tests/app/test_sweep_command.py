@@ -120,6 +120,7 @@ def test_a_failing_run_is_a_row_not_the_end(tmp_path: pathlib.Path, monkeypatch:
         (["--serial", "--workers", "2"], ["--serial", "--workers"]),
         (["--workers", "0"], ["--workers 0", "at least 1"]),
         (["--workers", "two"], ["--workers", "invalid int"]),
+        (["--address", "127.0.0.1:1"], ["cannot reach the Ray cluster at 127.0.0.1:1", "--serial"]),
         (["--config", "{tmp}/missing.toml"], ["missing.toml", "cannot read"]),
         (["--config", "{tmp}/bad.toml"], ["bad.toml", "colour", "not a sweep axis"]),
     ],
