@@ -235,6 +235,9 @@ def _items(value: object, name: str) -> list[object]:
         raise MatrixError(f"{name}: expected a list or comma-separated text, not {type(value).__name__}")
     if not items or any(item == "" for item in items):
         raise MatrixError(f"{name}: an empty entry")
+    for item in items:
+        if not isinstance(item, (str, int, float)):
+            raise MatrixError(f"{name}: {type(item).__name__} {item!r} inside the list: expected text or numbers")
     return items
 
 
@@ -273,7 +276,7 @@ def _scene(item: object, name: str, base: pathlib.Path | None) -> str:
     if text in ("mc-a", "mc-b"):
         raise MatrixError(f"{name}: {text} is a Monte-Carlo world (no images): `coplanar sim` runs those")
     path = _resolve(text, base)
-    if not path.is_file():
+    if not _is(path, name, text, file=True):
         raise MatrixError(f"{name}: {text}: neither a built-in scene ({', '.join(SCENE_NAMES)}) nor an existing scene file")
     return str(path)
 
@@ -282,13 +285,26 @@ def _dataset(item: object, name: str, base: pathlib.Path | None) -> str:
     """An existing path (as an absolute path); whether it is a dataset is the run's to find."""
     text = _text(item, name)
     path = _resolve(text, base)
-    if not path.exists():
+    if not _is(path, name, text, file=False):
         raise MatrixError(f"{name}: {text}: no such file or folder")
     return str(path)
 
 
+def _is(path: pathlib.Path, name: str, text: str, *, file: bool) -> bool:
+    """Whether `path` is a file (`file`) or exists; MatrixError where the file system refuses
+    the name (too long, ...)."""
+    try:
+        return path.is_file() if file else path.exists()
+    except OSError as e:
+        raise MatrixError(f"{name}: {text[:80]}{'...' if len(text) > 80 else ''}: {e.strerror or e}") from None
+
+
 def _resolve(text: str, base: pathlib.Path | None) -> pathlib.Path:
-    path = pathlib.Path(text).expanduser()
+    path = pathlib.Path(text)
+    try:
+        path = path.expanduser()
+    except RuntimeError:  # `~name` of no user: a plain name then
+        pass
     if not path.is_absolute() and base is not None:
         path = base / path
     return path.absolute()

@@ -108,3 +108,10 @@ def test_an_axis_the_options_replace_is_not_checked_in_the_file(tmp_path: pathli
     assert [r.input_name for r in runs] == ["here"] * 6
     with pytest.raises(MatrixError, match=r"sweep.toml: datasets: gone/MH_01: no such file"):
         matrix_from(read_toml(config), {}, file=config)
+
+
+def test_paths_that_the_file_system_refuses_are_one_line() -> None:
+    with pytest.raises(MatrixError, match="no such file"):
+        matrix_from(None, {"datasets": "~nobody-of-that-name/data"}).runs()
+    with pytest.raises(MatrixError, match="File name too long"):
+        matrix_from(None, {"scenes": "x/" * 3000}).runs()
