@@ -18,8 +18,10 @@ import dataclasses
 import json
 import os
 import pathlib
+import signal
 import socket
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
@@ -150,14 +152,30 @@ def ray_session(*, address: str | None = None, workers: int | None = None) -> It
         check_reachable(address)
         options["address"] = address
         where = f"the Ray cluster at {address}"
+    handlers = _signal_handlers()
     try:
         ray.init(**options)
     except Exception as e:  # ConnectionError, RuntimeError, ValueError: Ray's reasons vary
         raise RayUnavailable(f"cannot start {where}: {reason(e)} (--serial runs without Ray)") from None
+    finally:
+        _restore(handlers)  # Ray's own SIGTERM handler would end the driver without the command's last line
     try:
         yield RayCluster(where=where, cpus=float(ray.cluster_resources().get("CPU", 0.0)))
     finally:
         ray.shutdown()
+
+
+def _signal_handlers() -> dict[int, Any]:
+    """SIGINT's and SIGTERM's handlers now (main thread only: elsewhere none are set)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+
+
+def _restore(handlers: dict[int, Any]) -> None:
+    for number, handler in handlers.items():
+        if handler is not None:
+            signal.signal(number, handler)
 
 
 def check_reachable(address: str, *, timeout_s: float = 5.0) -> None:

@@ -11,6 +11,10 @@ import io
 import json
 import pathlib
 import shutil
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 
@@ -105,6 +109,24 @@ def test_a_failing_run_is_a_row_not_the_end(tmp_path: pathlib.Path, monkeypatch:
     assert sorted(p.name for p in out.iterdir()) == sorted(["room_P-wo_stereo_geometric_seed0_0.5s", *OUTPUTS])  # no folder for a failed run
     assert "4 runs: 4 ran, 0 already finished, 3 failed" in stdout and stdout.count("failed ") == 3
     assert "## Failed runs" in (out / "table.md").read_text()
+
+
+def test_sigterm_between_runs_keeps_the_finished_ones_and_the_sweep_resumes(tmp_path: pathlib.Path) -> None:
+    out = tmp_path / "out"
+    argv = ["--scenes", "room", "--duration", "2", "--variants", "P-wo,P-w,PL-w", "--serial", "--out", str(out)]
+    root = pathlib.Path(__file__).resolve().parents[2]
+    process = subprocess.Popen([sys.executable, "-m", "app.cli", "sweep", *argv], cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (out / "room_P-wo_stereo_geometric_seed0_2s").is_dir() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert process.poll() is None, "the sweep ended before the signal"
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130 and err.strip().splitlines()[-1] == f"interrupted: the finished runs are in {out}; the same command resumes there", err
+    finished = sorted(p.name for p in out.iterdir())
+    assert finished and all((out / name / "run.json").is_file() for name in finished)  # finished runs only: no staging folder, no half run
+    rc, stdout, stderr = _sweep(argv)
+    assert rc == 0 and f"3 runs: {3 - len(finished)} ran, {len(finished)} already finished, 0 failed" in stdout, stderr
 
 
 @pytest.mark.parametrize(
