@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
-from app import render_command, run_command, serve_command, sim_command
+from app import render_command, run_command, serve_command, sim_command, sweep_command
 from app.errors import EXIT_BAD_INPUT, UsageError, one_line
 
 
@@ -30,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     run_command.add_parser(sub)
     render_command.add_parser(sub)
     sim_command.add_parser(sub)
+    sweep_command.add_parser(sub)
     return parser
 
 

@@ -115,6 +115,28 @@ def build_engine(args: argparse.Namespace, *, headless: bool):
     a bad EuRoC folder. `headless` (`run`): the stereo pipeline skips the stages its variant
     does not use (as the paper's Table III), draws no keyframe image and no Hessian; the
     debugger gets every stage, the image and the Hessian."""
+    from backend.frontend.segmenters import SegmenterError
+
+    config = engine_config(args, headless=headless)
+    try:
+        return make_engine(config)  # DatasetError: one line naming the bad file
+    except SegmenterError as e:
+        raise segmenter_error(e, config) from None
+
+
+def segmenter_error(error: Exception, config: EngineConfig) -> Exception:
+    """The UsageError a SegmenterError from `make_engine(config)` is reported as."""
+    from app.errors import UsageError
+    from backend.frontend.segmenters import SegmenterKind
+
+    if config.segmenter is SegmenterKind.ORACLE:
+        return UsageError("--segmenter oracle: only with a rendered scene (it reads the renderer's plane ids)")
+    return UsageError(str(error))
+
+
+def engine_config(args: argparse.Namespace, *, headless: bool) -> EngineConfig:
+    """The EngineConfig of `--scene` / `--dataset` and the engine options, checked: UsageError
+    for a bad value (before anything runs). `headless`: as :func:`build_engine`."""
     from app.errors import UsageError
 
     if args.window < 2:
@@ -128,7 +150,6 @@ def build_engine(args: argparse.Namespace, *, headless: bool):
 
     from backend.data.source import ReaderOptions
     from backend.data.synthetic import SequenceSettings
-    from backend.frontend.segmenters import SegmenterError, SegmenterKind
 
     for name in ("calib", "topic"):
         if args.dataset is None and getattr(args, name, None) is not None:
@@ -140,7 +161,7 @@ def build_engine(args: argparse.Namespace, *, headless: bool):
         mislabel = 0.1 if args.mislabel is None else args.mislabel
         if not 0.0 <= mislabel <= 1.0:
             raise UsageError(f"--mislabel {args.mislabel}: must be a fraction in [0, 1]")
-        return make_engine(EngineConfig(scene=scene, seed=args.seed, variant=args.variant, window=args.window, mislabel=mislabel))
+        return EngineConfig(scene=scene, seed=args.seed, variant=args.variant, window=args.window, mislabel=mislabel)
 
     options: dict[str, Any] = {}
     if args.dataset is not None:
@@ -167,7 +188,7 @@ def build_engine(args: argparse.Namespace, *, headless: bool):
         options.update(scene=scene, duration_s=duration, stride=stride, speed=speed)
     mode = getattr(args, "mode", "stereo")
     kind = segmenter_kind_argument(args)
-    config = EngineConfig(
+    return EngineConfig(
         **options,
         frames=frames,
         seed=args.seed,
@@ -178,12 +199,6 @@ def build_engine(args: argparse.Namespace, *, headless: bool):
         segmenter_model=kind[1],
         interactive=not headless,
     )
-    try:
-        return make_engine(config)  # DatasetError: one line naming the bad file
-    except SegmenterError as e:
-        if kind[0] is SegmenterKind.ORACLE:
-            raise UsageError("--segmenter oracle: only with a rendered scene (it reads the renderer's plane ids)") from None
-        raise UsageError(str(e)) from None
 
 
 def segmenter_kind_argument(args: argparse.Namespace) -> tuple[SegmenterKind, pathlib.Path | None]:

@@ -1,8 +1,13 @@
 """Regenerate the table of the six variants on a real EuRoC folder (docs/results/euroc.md; by
-default the 300-pair MH_01 slice in the project's shared data), each run exactly as a user
-runs it: `coplanar run --dataset DIR --variant V --out TMP`, one run each.
+default the 300-pair MH_01 slice in the project's shared data) as a sweep: the matrix is
+sweeps/euroc_table.toml, run as a user runs it (`coplanar sweep --config
+sweeps/euroc_table.toml --out DIR`: each run exactly `coplanar run --dataset DIR --variant V`).
 
-    .venv/bin/python scripts/euroc_table.py [--dataset ../shared/data/euroc_mh01_slice]
+    .venv/bin/python scripts/euroc_table.py [--dataset ../shared/data/euroc_mh01_slice] [--out DIR] [--workers 1 | --serial | --address ADDR]
+
+`--workers 1` (the default) runs one at a time, so that the stage times are comparable; more
+give the same accuracy columns sooner. `--out DIR` keeps the sweep's folder (a second call
+with it runs only what is not finished there; default: a temporary folder).
 
 Writes docs/pipeline/euroc.json and replaces the text between the euroc-table markers in
 docs/results/euroc.md. Per run (from `metrics.json`): ATE over every frame with ground truth after SE(3)
@@ -26,6 +31,7 @@ from results_doc import write_block
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 VARIANTS = ("P-wo", "P-r", "P-w", "PL-wo", "PL-r", "PL-w")
 DEFAULT_DATASET = ROOT.parent / "shared" / "data" / "euroc_mh01_slice"
+SWEEP = ROOT / "sweeps" / "euroc_table.toml"  # its datasets: DEFAULT_DATASET
 
 
 def run_one(source: list[str], variant: str, *, keep: tuple[str, ...] = ()) -> dict:
@@ -44,6 +50,22 @@ def run_one(source: list[str], variant: str, *, keep: tuple[str, ...] = ()) -> d
         metrics["files"] = {name: (pathlib.Path(out) / name).read_text() for name in keep}
     metrics["wall_s"] = time.perf_counter() - t0
     return metrics
+
+
+def sweep_runs(config: pathlib.Path, out: pathlib.Path, options: list[str]) -> list[dict] | None:
+    """`coplanar sweep --config CONFIG --out OUT OPTIONS`, as a user runs it; every finished
+    run's metrics.json plus its wall time (s), in the matrix's order (None: the sweep refused
+    its options, having said why on stderr)."""
+    process = subprocess.run(
+        [sys.executable, "-m", "app.cli", "sweep", "--config", str(config), "--out", str(out), *options], cwd=ROOT, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL
+    )
+    if process.returncode == 2:
+        return None
+    rows = json.loads((out / "results.json").read_text())
+    for row in rows:
+        if row["status"] != "ok":
+            print(f"failed: {row['run_id']}: {row['error']}", file=sys.stderr)
+    return [{**json.loads((out / row["run_id"] / "metrics.json").read_text()), "wall_s": row["wall_s"]} for row in rows if row["status"] == "ok"]
 
 
 def publish(results: dict | None, body: str, *, json_name: str, block: str, write_doc: bool) -> int:
@@ -93,23 +115,29 @@ def table(results: list[dict], name: str) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dataset", type=pathlib.Path, default=DEFAULT_DATASET)
+    parser.add_argument("--dataset", type=pathlib.Path, default=None, help=f"another EuRoC folder (default: {SWEEP.name}'s, {DEFAULT_DATASET.name})")
+    parser.add_argument("--out", type=pathlib.Path, default=None, help="keep the sweep's folder here (default: a temporary folder)")
+    run = parser.add_mutually_exclusive_group()
+    run.add_argument("--workers", type=int, default=1, help="runs at a time (default 1: the stage times comparable)")
+    run.add_argument("--serial", action="store_true", help="in one process, without Ray")
+    parser.add_argument("--address", default=None, help="an existing Ray cluster")
     add_no_doc_option(parser, "docs/results/euroc.md")
     args = parser.parse_args()
-    if not args.dataset.is_dir():
-        print(f"error: {args.dataset}: no such folder", file=sys.stderr)
+    options = ["--serial"] if args.serial else ["--workers", str(args.workers)] + (["--address", args.address] if args.address else [])
+    if args.dataset is not None:
+        options += ["--datasets", str(args.dataset)]
+    with tempfile.TemporaryDirectory() as scratch:
+        results = sweep_runs(SWEEP, args.out or pathlib.Path(scratch), options)
+    if results is None:
         return 2
-    results = []
-    for variant in VARIANTS:
-        r = run_one(["--dataset", str(args.dataset)], variant)
-        r.pop("files")
-        results.append(r)
+    for r in results:
         print(
-            f"{variant:6s} ATE {_f(r['ate_rmse_cm'])} cm over {r['frames_evaluated']} frames, lost {r['lost_frames']}, "
+            f"{r['variant']:6s} ATE {_f(r['ate_rmse_cm'])} cm over {r['frames_evaluated']} frames, lost {r['lost_frames']}, "
             f"kf {r['keyframes']}, total/frame {_f(r['timing_ms']['total_per_frame'], 1)} ms ({r['wall_s']:.0f} s)",
             flush=True,
         )
-    return publish({"dataset": args.dataset.name, "runs": results}, table(results, args.dataset.name), json_name="euroc.json", block="euroc-table", write_doc=not args.no_doc)
+    name = (args.dataset or DEFAULT_DATASET).name
+    return publish({"dataset": name, "runs": results}, table(results, name), json_name="euroc.json", block="euroc-table", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

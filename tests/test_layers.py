@@ -20,6 +20,7 @@ FLOORS: tuple[tuple[str, ...], ...] = (
     ("backend.eval",),
     ("backend.pipeline",),
     ("backend.export",),
+    ("backend.headless", "backend.sweep"),
     ("viewer",),
     ("app",),
 )
