@@ -30,7 +30,8 @@ def sweep_summary(folder: pathlib.Path) -> str:
     except (OSError, ValueError) as e:
         lines.append(f"*results.json: {getattr(e, 'strerror', None) or e}*")
     try:
-        lines.append((folder / "table.md").read_text())
+        table = (folder / "table.md").read_text()
+        lines.append(table.split("\n", 1)[1] if table.startswith("# ") else table)  # its title: the tab says what it is
     except OSError:
         lines.append("*no table.md yet*")
     return "\n\n".join(lines)
