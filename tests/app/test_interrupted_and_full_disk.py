@@ -19,14 +19,16 @@ FILE_LIMIT_BYTES = 12_000  # larger than any probe, smaller than the outputs
 
 
 def _coplanar(*argv: str, file_limit: int | None = None, **kwargs) -> subprocess.Popen:
-    def limit() -> None:  # a file-size limit stands in for a full disk: writes past it fail (EFBIG)
-        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        resource.setrlimit(resource.RLIMIT_FSIZE, (file_limit, file_limit))
+    def limit() -> None:
+        # Ctrl-C as in a terminal, even where the tests themselves run with SIGINT ignored (a
+        # background job of a non-interactive shell inherits SIG_IGN, and so would the child).
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if file_limit is not None:  # a file-size limit stands in for a full disk: writes past it fail (EFBIG)
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+            resource.setrlimit(resource.RLIMIT_FSIZE, (file_limit, file_limit))
 
     env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
-    return subprocess.Popen(
-        [sys.executable, "-m", "app.cli", *argv], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=limit if file_limit is not None else None, **kwargs
-    )
+    return subprocess.Popen([sys.executable, "-m", "app.cli", *argv], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=limit, **kwargs)
 
 
 def _finish(process: subprocess.Popen, timeout: float = 300) -> tuple[int, str]:

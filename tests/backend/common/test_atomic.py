@@ -84,6 +84,7 @@ def test_a_stale_staging_folder_of_a_killed_process_is_removed(tmp_path: pathlib
 def test_ctrl_c_while_the_files_move_in_is_held_until_all_have(tmp_path: pathlib.Path) -> None:
     original = os.replace
     calls = []
+    before = signal.getsignal(signal.SIGINT)  # (ignored where the tests run as a background job)
 
     def replace_and_interrupt(src, dst):
         calls.append(dst)
@@ -100,4 +101,4 @@ def test_ctrl_c_while_the_files_move_in_is_held_until_all_have(tmp_path: pathlib
     finally:
         os.replace = original
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt", "c.txt"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is before  # the handler is put back as it was
