@@ -133,7 +133,104 @@ class GroundTruth:
         return T
 
 
-class EurocDataset:
+class RectifiedRecording:
+    """What a recorded stereo + IMU input answers alike, whatever its files (the EuRoC folder,
+    TUM-VI export and ROS bag readers): its length, the rectified camera and pairs, the IMU
+    where there is one (a one-line DatasetError where VIO asks for a missing one), the body
+    frame and the ground truth's samples. A reader sets `timestamps_ns`, `rectification`,
+    `T_world_body` (NaN rows: no ground truth), `ground_truth` (the file's samples or None),
+    `_imu` and `_no_imu` (what is missing, path and reason), and implements `raw_pair` and
+    `imu_calibration`."""
+
+    ground_truth_frame: str = "body"  # what `T_world_body` (the ground truth) is the pose of: the IMU body
+    timestamps_ns: np.ndarray
+    rectification: StereoRectification
+    T_world_body: np.ndarray
+    ground_truth: GroundTruth | None
+    _imu: ImuData | None
+    _no_imu: tuple[pathlib.Path, str] | None
+
+    def __len__(self) -> int:
+        return int(self.timestamps_ns.shape[0])
+
+    @property
+    def camera(self) -> PinholeCamera:
+        """The rectified left camera (rect0) with the stereo baseline, metres."""
+        return self.rectification.camera
+
+    @property
+    def ground_truth_valid(self) -> np.ndarray:
+        """(N,) bool: frames with a ground-truth pose."""
+        return ~np.isnan(self.T_world_body[:, 0, 0])
+
+    def raw_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame `index`'s raw cam0, cam1 images: grey uint8 (height, width)."""
+        raise NotImplementedError
+
+    def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame `index`'s rectified rect0, rect1 images: grey uint8, pixels of `camera`."""
+        return self.rectification.rectify(*self.raw_pair(index))
+
+    @property
+    def imu_calibration(self) -> ImuCalibration:
+        raise NotImplementedError
+
+    @property
+    def has_imu(self) -> bool:
+        """Whether the input has IMU samples."""
+        return self._imu is not None
+
+    @property
+    def imu(self) -> ImuData:
+        """Every IMU sample; DatasetError (one line naming what is missing) without IMU data."""
+        if self._imu is None:
+            raise self._no_imu_error()
+        return self._imu
+
+    def imu_between(self, t0_ns: int, t1_ns: int) -> ImuData:
+        """IMU samples with `t0_ns < t <= t1_ns`: gyro rad/s, accelerometer m/s², in the IMU
+        frame (`imu_calibration.T_body_imu`; the identity, i.e. the body frame, in EuRoC).
+        DatasetError (one line) without IMU data (`has_imu` False)."""
+        return self.imu.between(t0_ns, t1_ns)
+
+    @property
+    def imu_noise(self) -> ImuNoise:
+        """The IMU noise densities of its calibration (DatasetError without IMU data)."""
+        return self.imu_calibration.noise
+
+    @property
+    def T_body_rect0(self) -> np.ndarray:
+        """(4, 4) the rectified left camera in the body (IMU) frame, metres."""
+        return np.asarray(self.rectification.T_body_rect0, dtype=float)
+
+    @property
+    def T_truth_rect0(self) -> np.ndarray:
+        """(4, 4) the rectified left camera in the frame the ground truth is the pose of
+        (`ground_truth_frame`: the body), metres."""
+        return self.T_body_rect0
+
+    def ground_truth_samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ground truth's samples as the input gives them, in the body (its `T_BS`
+        applied): timestamps (M,) int64 ns and `T_world_body` (M, 4, 4), metres; M is 0
+        without ground truth."""
+        truth = self.ground_truth
+        if truth is None:
+            return np.zeros(0, np.int64), np.zeros((0, 4, 4))
+        return truth.timestamp_ns, truth.T_world_body()
+
+    def _no_imu_error(self) -> DatasetError:
+        assert self._no_imu is not None  # set whenever the IMU data is missing
+        path, reason = self._no_imu
+        return DatasetError(path, f"{reason}: IMU data is needed for VIO (stereo runs without it)")
+
+    def _check_index(self, index: int) -> int:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"frame {index} out of range (0..{n - 1})")
+        return index % n
+
+
+class EurocDataset(RectifiedRecording):
     """A stereo EuRoC ASL folder, with or without IMU data (module docstring for frames, units
     and what is accepted).
 
@@ -146,7 +243,6 @@ class EurocDataset:
 
     GROUND_TRUTH_FOLDER: ClassVar[str] = "state_groundtruth_estimate0"
     SIXTEEN_BIT_IMAGES: ClassVar[bool] = False  # EuRoC's images are 8-bit; a 16-bit one is an error
-    ground_truth_frame: str = "body"  # what `T_world_body` (the ground truth) is the pose of: the IMU body
 
     def __init__(self, root: pathlib.Path | str, *, max_ground_truth_gap_ns: int = 100_000_000) -> None:
         self.root = pathlib.Path(root)
@@ -189,19 +285,6 @@ class EurocDataset:
         """The IMU's calibration, read when `imu_dir` exists: its `sensor.yaml`."""
         return read_imu_yaml(imu_dir / "sensor.yaml")
 
-    def __len__(self) -> int:
-        return int(self.timestamps_ns.shape[0])
-
-    @property
-    def camera(self) -> PinholeCamera:
-        """The rectified left camera (rect0) with the stereo baseline, metres."""
-        return self.rectification.camera
-
-    @property
-    def ground_truth_valid(self) -> np.ndarray:
-        """(N,) bool: frames with a ground-truth pose."""
-        return ~np.isnan(self.T_world_body[:, 0, 0])
-
     def image_paths(self, index: int) -> tuple[pathlib.Path, pathlib.Path]:
         """Files of frame `index`'s cam0 and cam1 images."""
         index = self._check_index(index)
@@ -213,22 +296,6 @@ class EurocDataset:
         sixteen_bit = self.SIXTEEN_BIT_IMAGES
         return _load_gray(path0, self.cam0, sixteen_bit=sixteen_bit), _load_gray(path1, self.cam1, sixteen_bit=sixteen_bit)
 
-    def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Frame `index`'s rectified rect0, rect1 images: grayscale uint8, pixels of `camera`."""
-        return self.rectification.rectify(*self.raw_pair(index))
-
-    @property
-    def has_imu(self) -> bool:
-        """Whether the folder has IMU data (`imu0` with at least one sample)."""
-        return self._imu is not None
-
-    @property
-    def imu(self) -> ImuData:
-        """Every IMU sample; DatasetError (one line naming `imu0`) without IMU data."""
-        if self._imu is None:
-            raise self._no_imu_error()
-        return self._imu
-
     @property
     def imu_calibration(self) -> ImuCalibration:
         """`imu0/sensor.yaml`; DatasetError (one line naming `imu0`) without an `imu0` folder."""
@@ -236,52 +303,10 @@ class EurocDataset:
             raise self._no_imu_error()
         return self._imu_calibration
 
-    def imu_between(self, t0_ns: int, t1_ns: int) -> ImuData:
-        """IMU samples with `t0_ns < t <= t1_ns`: gyro rad/s, accelerometer m/s², in the IMU
-        frame (`imu_calibration.T_body_imu`; the identity, i.e. the body frame, in EuRoC).
-        DatasetError (one line naming `imu0`) without IMU data (`has_imu` False)."""
-        return self.imu.between(t0_ns, t1_ns)
-
-    @property
-    def imu_noise(self) -> ImuNoise:
-        """The IMU noise densities of `imu0/sensor.yaml` (DatasetError without `imu0`)."""
-        return self.imu_calibration.noise
-
-    @property
-    def T_body_rect0(self) -> np.ndarray:
-        """(4, 4) the rectified left camera in the body (IMU) frame, metres."""
-        return np.asarray(self.rectification.T_body_rect0, dtype=float)
-
-    def ground_truth_samples(self) -> tuple[np.ndarray, np.ndarray]:
-        """The ground truth's samples as its file gives them (`GROUND_TRUTH_FOLDER/data.csv`): timestamps
-        (M,) int64 ns and body poses `T_world_body` (M, 4, 4), metres (`T_BS` of its
-        `sensor.yaml` applied: the identity in EuRoC); M is 0 without ground truth."""
-        truth = self.ground_truth
-        if truth is None:
-            return np.zeros(0, np.int64), np.zeros((0, 4, 4))
-        return truth.timestamp_ns, truth.T_world_body()
-
-    @property
-    def T_truth_rect0(self) -> np.ndarray:
-        """(4, 4) the rectified left camera in the frame the ground truth is the pose of
-        (`ground_truth_frame`: the body), metres."""
-        return self.T_body_rect0
-
     @property
     def imu_label(self) -> str:
         """The IMU samples' file, for messages."""
         return f"{self.root}/mav0/imu0/data.csv"
-
-    def _no_imu_error(self) -> DatasetError:
-        assert self._no_imu is not None  # set whenever the IMU data is missing
-        path, reason = self._no_imu
-        return DatasetError(path, f"{reason}: IMU data is needed for VIO (stereo runs without it)")
-
-    def _check_index(self, index: int) -> int:
-        n = len(self)
-        if not -n <= index < n:
-            raise IndexError(f"frame {index} out of range (0..{n - 1})")
-        return index % n
 
 
 def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:

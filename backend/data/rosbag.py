@@ -68,9 +68,8 @@ from backend.data.calibration import (
     stereo_rectification,
 )
 from backend.data.errors import DatasetError
-from backend.data.euroc import QUATERNION_NORM_TOLERANCE, GroundTruth, SensorPoses
-from backend.data.motion import ImuData, ImuNoise
-from backend.geometry.camera import PinholeCamera
+from backend.data.euroc import QUATERNION_NORM_TOLERANCE, GroundTruth, RectifiedRecording, SensorPoses
+from backend.data.motion import ImuData
 
 DEFAULT_TOPICS = {"cam0": "/cam0/image_raw", "cam1": "/cam1/image_raw", "imu0": "/imu0"}
 TOPIC_NAMES = ("cam0", "cam1", "imu0", "groundtruth")
@@ -186,11 +185,9 @@ class _ImageTopic:
     record_ns: np.ndarray
 
 
-class RosBagDataset:
+class RosBagDataset(RectifiedRecording):
     """A ROS1 bag or ROS2 bag folder read as a stereo source with an IMU (module docstring
     for topics, frames, units and what is accepted). Raises DatasetError on bad input."""
-
-    ground_truth_frame: str = "body"  # what T_truth_rect0 places the camera in
 
     def __init__(self, path: pathlib.Path | str, *, calib: pathlib.Path | None = None, topics: tuple[tuple[str, str], ...] = (), max_ground_truth_gap_ns: int = 100_000_000) -> None:
         """`calib`: the calibration folder or camchain file (required; module docstring); `topics`: (name,
@@ -229,55 +226,11 @@ class RosBagDataset:
         self.T_world_cam0: np.ndarray = self.T_world_body @ self.cam0.T_body_camera
         self.T_world_rect0: np.ndarray = self.T_world_cam0 @ self.rectification.T_cam0_rect0
 
-    def __len__(self) -> int:
-        return int(self.timestamps_ns.shape[0])
-
-    @property
-    def camera(self) -> PinholeCamera:
-        """The rectified left camera (rect0) with the stereo baseline, metres."""
-        return self.rectification.camera
-
-    @property
-    def ground_truth_valid(self) -> np.ndarray:
-        """(N,) bool: frames with a ground-truth pose."""
-        return ~np.isnan(self.T_world_body[:, 0, 0])
-
-    def ground_truth_samples(self) -> tuple[np.ndarray, np.ndarray]:
-        """The ground-truth topic's samples as the bag gives them (in the body: the tracked
-        frame moved by the calibration's T_BS): timestamps (M,) int64 ns and `T_world_body`
-        (M, 4, 4), metres; M is 0 without ground-truth poses."""
-        truth = self.ground_truth
-        if truth is None:
-            return np.zeros(0, np.int64), np.zeros((0, 4, 4))
-        return truth.timestamp_ns, truth.T_world_body()
-
-    @property
-    def T_truth_rect0(self) -> np.ndarray:
-        """(4, 4) the rectified left camera in the ground truth's frame (`ground_truth_frame`,
-        the body), metres: `T_body_rect0`."""
-        return self.T_body_rect0
-
     def raw_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Frame `index`'s raw cam0, cam1 images: grey uint8 (height, width), read from the bag now."""
         index = self._check_index(index)
         stamp = int(self.timestamps_ns[index])
         return self._read_image(self._left, stamp, int(self._record0[index])), self._read_image(self._right, stamp, int(self._record1[index]))
-
-    def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """Frame `index`'s rectified rect0, rect1 images: grey uint8, pixels of `camera`."""
-        return self.rectification.rectify(*self.raw_pair(index))
-
-    @property
-    def has_imu(self) -> bool:
-        """Whether the bag has IMU samples and the calibration `imu0/sensor.yaml`."""
-        return self._imu is not None
-
-    @property
-    def imu(self) -> ImuData:
-        """Every IMU sample; DatasetError (one line) without IMU data."""
-        if self._imu is None:
-            raise self._no_imu_error()
-        return self._imu
 
     @property
     def imu_calibration(self) -> ImuCalibration:
@@ -285,20 +238,6 @@ class RosBagDataset:
         if self._imu_calibration is None or self._imu is None:
             raise self._no_imu_error()
         return self._imu_calibration
-
-    def imu_between(self, t0_ns: int, t1_ns: int) -> ImuData:
-        """IMU samples with `t0_ns < t <= t1_ns` (rad/s, m/s², IMU frame)."""
-        return self.imu.between(t0_ns, t1_ns)
-
-    @property
-    def imu_noise(self) -> ImuNoise:
-        """The noise densities of the calibration's `imu0/sensor.yaml`."""
-        return self.imu_calibration.noise
-
-    @property
-    def T_body_rect0(self) -> np.ndarray:
-        """(4, 4) the rectified left camera in the body (IMU) frame, metres."""
-        return np.asarray(self.rectification.T_body_rect0, dtype=float)
 
     @property
     def imu_label(self) -> str:
@@ -308,12 +247,6 @@ class RosBagDataset:
     def close(self) -> None:
         """Close the bag's files (reading an image again reopens it)."""
         self._bag.close()
-
-    def _check_index(self, index: int) -> int:
-        n = len(self)
-        if not -n <= index < n:
-            raise IndexError(f"frame {index} out of range (0..{n - 1})")
-        return index % n
 
     def _image_topic(self, name: str) -> _ImageTopic:
         """One camera's header stamps and record times; every image is checked (type,
@@ -381,11 +314,6 @@ class RosBagDataset:
         if not yaml.exists():
             return None, None, (yaml, "missing file")
         return read_imu_yaml(yaml), ImuData(timestamp_ns=stamps_ns, gyro=samples[:, 0:3], accel=samples[:, 3:6]), None
-
-    def _no_imu_error(self) -> DatasetError:
-        assert self._no_imu is not None  # set whenever the IMU data is missing
-        path, reason = self._no_imu
-        return DatasetError(path, f"{reason}: IMU data is needed for VIO (stereo runs without it)")
 
     def _read_ground_truth(self, calib: pathlib.Path, *, max_gap_ns: int) -> None:
         """The ground truth topic (module docstring) into `ground_truth` and `T_world_body`,
