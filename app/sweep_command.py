@@ -36,6 +36,7 @@ AXIS_OPTIONS = {
     "strides": ("N,...", "rendered scenes: keep every N-th frame (default 1)"),
     "duration": ("SECONDS", "rendered scenes: seconds of motion (default 30)"),
     "frames": ("N", "only the first N frames of every input (default all)"),
+    "calib": ("PATH", "datasets that hold no calibration (ROS bags): read with this one, as run's --calib"),
 }
 OUTPUTS = ("results.csv", "results.json", "table.md", "ate_by_variant.png", "time_by_stage.png")
 

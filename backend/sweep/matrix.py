@@ -31,7 +31,7 @@ DEFAULT_DURATION_S = 30.0  # as `coplanar run`
 MAX_DURATION_S = 3600.0  # as `coplanar run` (app/sources.py)
 MAX_SPEED = 10.0
 MAX_RUNS = 100_000
-AXES = ("scenes", "datasets", "variants", "modes", "segmenters", "seeds", "speeds", "strides", "duration", "frames")
+AXES = ("scenes", "datasets", "variants", "modes", "segmenters", "seeds", "speeds", "strides", "duration", "frames", "calib")
 
 
 class MatrixError(ValueError):
@@ -44,7 +44,8 @@ class RunSpec:
     a `dataset` path, absolute), `variant`, `mode` (stereo | vio), `segmenter` (geometric |
     learned | oracle; resolved, never the mode's implicit default), `seed`, and for rendered
     scenes `duration_s` (seconds of motion), `speed` (times the scene's speed) and `stride`
-    (every N-th frame); `frames`: only the first N frames (None: all)."""
+    (every N-th frame); `frames`: only the first N frames (None: all); `calib`: the calibration
+    a dataset that holds none is read with (a ROS bag's `--calib`; None: none)."""
 
     scene: str | None
     dataset: str | None
@@ -56,6 +57,7 @@ class RunSpec:
     speed: float = 1.0
     stride: int = 1
     frames: int | None = None
+    calib: str | None = None
 
     @property
     def input_name(self) -> str:
@@ -107,6 +109,7 @@ class RunSpec:
             "speed": self.speed,
             "stride": self.stride,
             "frames_limit": self.frames,
+            "calib": self.calib,
         }
 
     def config(self) -> EngineConfig:
@@ -116,7 +119,9 @@ class RunSpec:
         if self.scene is not None:
             options: dict[str, Any] = {"scene": self.scene, "duration_s": self.duration_s or DEFAULT_DURATION_S, "speed": self.speed, "stride": self.stride}
         else:
-            options = {"dataset": self.dataset}
+            from backend.data.source import ReaderOptions
+
+            options = {"dataset": self.dataset, "reader": ReaderOptions(calib=None if self.calib is None else pathlib.Path(self.calib))}
         return EngineConfig(**options, frames=self.frames, seed=self.seed, variant=self.variant, mode=self.mode, segmenter=self.segmenter)  # type: ignore[arg-type]
 
 
@@ -135,6 +140,7 @@ class SweepMatrix:
     strides: tuple[int, ...] = (1,)
     duration_s: float = DEFAULT_DURATION_S
     frames: int | None = None
+    calib: str | None = None
 
     def runs(self) -> list[RunSpec]:
         """Every run, inputs outermost (scenes, then datasets), then seeds, modes,
@@ -150,7 +156,8 @@ class SweepMatrix:
             motions = itertools.product(self.speeds, self.strides) if scene is not None else [(1.0, 1)]
             for segmenter, (speed, stride), variant in itertools.product(segmenters, list(motions), self.variants):
                 duration = self.duration_s if scene is not None else None
-                runs.append(RunSpec(scene, dataset, variant, mode, segmenter, seed, duration_s=duration, speed=speed, stride=stride, frames=self.frames))
+                calib = self.calib if dataset is not None else None
+                runs.append(RunSpec(scene, dataset, variant, mode, segmenter, seed, duration_s=duration, speed=speed, stride=stride, frames=self.frames, calib=calib))
                 if len(runs) > MAX_RUNS:
                     raise MatrixError(f"more than {MAX_RUNS} runs: split the sweep")
         seen: dict[str, RunSpec] = {}
@@ -196,6 +203,8 @@ def parse_axes(values: Mapping[str, object], *, where: str = "--", base: pathlib
             fields["duration_s"] = _number(_single(items, name), name, low=0.0, high=MAX_DURATION_S, unit=" seconds")
         elif key == "frames":
             fields["frames"] = _integer(_single(items, name), name, low=1)
+        elif key == "calib":
+            fields["calib"] = _dataset(_single(items, name), name, base)
     return fields
 
 

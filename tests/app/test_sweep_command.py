@@ -177,3 +177,21 @@ def test_ray_sweep_gives_the_serial_results(serial: pathlib.Path, tmp_path: path
     assert [without_times(r) for r in _rows(out)] == [without_times(r) for r in _rows(serial)]
     for run_id in IDS:
         assert (out / run_id / "trajectory.txt").read_bytes() == (serial / run_id / "trajectory.txt").read_bytes()
+
+
+def test_a_bag_sweeps_with_its_calibration_as_run_reads_it(tmp_path: pathlib.Path) -> None:
+    """A ROS bag holds no calibration: `--calib` gives it to every dataset run of the sweep,
+    and the run is the one `coplanar run --dataset BAG --calib DIR` makes."""
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert cli.main(["render", "--scene", "boxes", "--duration", "1", "--format", "rosbag1", "--out", str(tmp_path / "bag")]) == 0
+    bag, calib = tmp_path / "bag" / "data.bag", tmp_path / "bag" / "calib"
+    rc, _, err = _sweep(["--datasets", str(bag), "--variants", "P-wo", "--serial", "--out", str(tmp_path / "sweep")])
+    assert rc == 1 and "a bag holds no camera calibration" in _rows(tmp_path / "sweep")[0]["error"], err
+    rc, _, err = _sweep(["--datasets", str(bag), "--calib", str(calib), "--variants", "P-wo", "--serial", "--out", str(tmp_path / "sweep")])
+    assert rc == 0, err
+    (row,) = _rows(tmp_path / "sweep")
+    assert row["status"] == "ok" and row["calib"] == str(calib)
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert cli.main(["run", "--dataset", str(bag), "--calib", str(calib), "--variant", "P-wo", "--out", str(tmp_path / "run")]) == 0
+    run_metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert row["ate_rmse_cm"] == pytest.approx(run_metrics["ate_rmse_cm"], rel=1e-12)
