@@ -1,9 +1,13 @@
 """The VIO table (docs/results/vio.md; the paper's Table II, VIO columns) with the stereo
-figures of the same input beside them: every variant on every rendered scene, run exactly as
-`coplanar run --mode vio|stereo --scene S --variant V --speed 2 --duration 30` runs them
-(seed 0, one run each).
+figures of the same input beside them: every variant on every rendered scene, as a sweep
+(sweeps/vio_table.toml, run as `coplanar sweep --config sweeps/vio_table.toml`: each run
+exactly `coplanar run --mode vio|stereo --scene S --variant V --speed 2 --duration 30`; seed
+0, one run each).
 
-    .venv/bin/python scripts/vio_table.py [--duration 30] [--speed 2] [--scenes room,corridor,boxes]
+    .venv/bin/python scripts/vio_table.py [--duration 30] [--speed 2] [--scenes room,corridor,boxes] [--out DIR] [--workers 1 | --serial | --address ADDR]
+
+`--workers 1` (the default) runs one at a time, so that the times per frame are comparable;
+`--out DIR` keeps the sweep's folder (a second call runs only what is not finished there).
 
 Writes docs/vio/results.json and replaces the vio-table block of docs/results/vio.md. Per run:
 ATE over all tracked frames with ground truth after SE(3) and Sim(3) alignment (cm), the Sim(3)
@@ -26,20 +30,29 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
+import subprocess
+
 from euroc_table import add_no_doc_option, publish
 
-from app import cli
 from backend.optim.variant import VARIANTS
 
+SWEEP = ROOT / "sweeps" / "vio_table.toml"
 
-def run_one(scene: str, variant: str, mode: str, *, duration: float, speed: float, extra: tuple[str, ...] = ()) -> dict:
-    """`coplanar run` as a user runs it; its metrics.json."""
-    with tempfile.TemporaryDirectory() as tmp:
-        out = pathlib.Path(tmp) / "out"
-        argv = ["run", "--scene", scene, "--mode", mode, "--variant", variant, "--duration", str(duration), "--speed", str(speed), "--out", str(out), *extra]
-        if cli.main(argv) != 0:
-            raise SystemExit(f"coplanar {' '.join(argv)} failed")
-        return json.loads((out / "metrics.json").read_text())
+
+def sweep_metrics(out: pathlib.Path, options: list[str]) -> dict[tuple[str, str, str], dict]:
+    """`coplanar sweep --config sweeps/vio_table.toml --out OUT OPTIONS`, as a user runs it;
+    every finished run's metrics.json by (scene, mode, variant). Exits 2 where the sweep
+    refused its options (it said why)."""
+    process = subprocess.run([sys.executable, "-m", "app.cli", "sweep", "--config", str(SWEEP), "--out", str(out), *options], cwd=ROOT, stdout=subprocess.DEVNULL)
+    if process.returncode == 2:
+        raise SystemExit(2)
+    found = {}
+    for r in json.loads((out / "results.json").read_text()):
+        if r["status"] != "ok":
+            print(f"failed: {r['run_id']}: {r['error']}", file=sys.stderr)
+            continue
+        found[(r["input"], r["mode"], r["variant"])] = json.loads((out / r["run_id"] / "metrics.json").read_text())
+    return found
 
 
 def _f(value: float | None, digits: int = 2) -> str:
@@ -64,6 +77,11 @@ def main() -> int:
     p.add_argument("--speed", type=float, default=2.0)
     p.add_argument("--scenes", default="room,corridor,boxes")
     p.add_argument("--variants", default=",".join(VARIANTS))
+    p.add_argument("--out", type=pathlib.Path, default=None, help="keep the sweep's folder here (default: a temporary folder)")
+    run = p.add_mutually_exclusive_group()
+    run.add_argument("--workers", type=int, default=1, help="runs at a time (default 1: the times per frame comparable)")
+    run.add_argument("--serial", action="store_true", help="in one process, without Ray")
+    p.add_argument("--address", default=None, help="an existing Ray cluster")
     add_no_doc_option(p, "docs/results/vio.md")
     p.add_argument("--from-json", action="store_true", help="rewrite the table from docs/vio/results.json without running")
     p.add_argument("--stereo-from-json", action="store_true", help="run VIO only; the stereo columns from docs/vio/results.json (for a change that leaves the stereo pipeline as it was)")
@@ -78,13 +96,21 @@ def main() -> int:
         saved = json.loads(out.read_text())
         args.duration, args.speed, results = saved["duration_s"], saved["speed"], saved["runs"]
         rows = [row(r["scene"], r["variant"], r["vio"], r["stereo"]) for r in results]
-    for scene in [] if args.from_json else args.scenes.split(","):
-        for variant in args.variants.split(","):
-            vio = run_one(scene, variant, "vio", duration=args.duration, speed=args.speed)
-            stereo = saved_stereo.get((scene, variant)) or run_one(scene, variant, "stereo", duration=args.duration, speed=args.speed)
-            results.append({"scene": scene, "variant": variant, "vio": vio, "stereo": stereo})
-            rows.append(row(scene, variant, vio, stereo))
-            print(rows[-1], flush=True)
+    if not args.from_json:
+        options = ["--serial"] if args.serial else ["--workers", str(args.workers)] + (["--address", args.address] if args.address else [])
+        options += ["--scenes", args.scenes, "--variants", args.variants, "--duration", f"{args.duration:g}", "--speeds", f"{args.speed:g}"]
+        options += ["--modes", "vio" if args.stereo_from_json else "vio,stereo"]
+        with tempfile.TemporaryDirectory() as scratch:
+            found = sweep_metrics(args.out or pathlib.Path(scratch), options)
+        for scene in args.scenes.split(","):
+            for variant in args.variants.split(","):
+                vio = found.get((scene, "vio", variant))
+                stereo = saved_stereo.get((scene, variant)) or found.get((scene, "stereo", variant))
+                if vio is None or stereo is None:
+                    raise SystemExit(f"vio_table: {scene} {variant}: a run failed (above)")
+                results.append({"scene": scene, "variant": variant, "vio": vio, "stereo": stereo})
+                rows.append(row(scene, variant, vio, stereo))
+                print(rows[-1], flush=True)
     if not args.from_json:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps({"duration_s": args.duration, "speed": args.speed, "runs": results}, indent=2) + "\n")
