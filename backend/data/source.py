@@ -115,6 +115,8 @@ class RenderedTruth(Protocol):
 
     def left_depth(self, index: int) -> np.ndarray: ...
 
+    def left_plane_ids(self, index: int) -> np.ndarray: ...
+
 
 @dataclasses.dataclass(frozen=True)
 class ReaderOptions:

@@ -160,6 +160,13 @@ class SyntheticSequence:
         T = self.T_world_rect0[index]
         return render_view(self.scene, self.camera, T[:3, :3], T[:3, 3]).depth
 
+    def left_plane_ids(self, index: int) -> np.ndarray:
+        """Plane ids (H, W) int of frame `index`'s left view (-1 where no plane is hit),
+        rendered without the frame cache (as `views(index)[0].plane_id`, without the images)."""
+        index = range(len(self))[index]
+        T = self.T_world_rect0[index]
+        return render_view(self.scene, self.camera, T[:3, :3], T[:3, 3]).plane_id
+
     def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right uint8 images (H, W) of frame `index`."""
         left, right = self.views(index)

@@ -3,8 +3,30 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from backend.geometry.camera import PinholeCamera
+    from backend.pipeline.snapshot import PlaneLandmark
+
+MIN_IMAGE_SHARE = 0.05  # a true plane counts as seen when it covers this share of some keyframe's left image
+
+
+@runtime_checkable
+class RenderedPlanes(Protocol):
+    """What :func:`plane_recovery` reads of a rendered sequence (`SyntheticSequence`): its
+    frames' times (ns), its left camera, its true planes (id -> (n, d), world) and each
+    frame's left plane ids."""
+
+    timestamps_ns: np.ndarray
+    plane_table: dict[int, np.ndarray]
+
+    @property
+    def camera(self) -> PinholeCamera: ...
+
+    def left_plane_ids(self, index: int) -> np.ndarray: ...
 
 
 def recovered_planes(
@@ -48,3 +70,32 @@ def recovered_planes(
             if len(hull):
                 offset[:, e] = np.max(np.abs(hull @ n_true.T + d_true[None, :]), axis=0)
     return np.any(angle_ok & (offset <= max_offset_m), axis=1)
+
+
+def plane_recovery(truth: RenderedPlanes, keyframe_timestamps_ns: np.ndarray, planes: Sequence[PlaneLandmark], *, min_share: float = MIN_IMAGE_SHARE) -> dict[str, Any]:
+    """The rendered scene's true planes the final map recovered: `seen`, the true planes
+    covering at least `min_share` of some keyframe's left image (the keyframes at
+    `keyframe_timestamps_ns`, frames of `truth`); `recovered`, those of them matched by a
+    map plane (`planes`, world frame) within 10° whose patch lies within 10 cm of the true
+    plane (:func:`recovered_planes` with the hulls); `recovered_by_origin_offset`, the older
+    count comparing the offsets at the world origin instead. Plane ids are the scene's."""
+    frames = np.searchsorted(np.asarray(truth.timestamps_ns), np.asarray(keyframe_timestamps_ns))
+    pixels = truth.camera.width * truth.camera.height
+    seen: set[int] = set()
+    for i in frames:
+        in_view, counts = np.unique(truth.left_plane_ids(int(i)), return_counts=True)
+        seen |= {int(p) for p, c in zip(in_view, counts) if p >= 0 and c >= min_share * pixels}
+    ids = sorted(seen)
+    n_true = np.array([truth.plane_table[i][:3] for i in ids], dtype=float).reshape(-1, 3)
+    d_true = np.array([truth.plane_table[i][3] for i in ids], dtype=float)
+    n_est = np.array([p.n for p in planes], dtype=float).reshape(-1, 3)
+    d_est = np.array([p.d for p in planes], dtype=float)
+    found = recovered_planes(n_est, d_est, n_true, d_true, hulls_est_world=[p.hull_world for p in planes])
+    at_origin = recovered_planes(n_est, d_est, n_true, d_true)
+    return {
+        "seen": len(ids),
+        "recovered": int(found.sum()),
+        "recovered_by_origin_offset": int(at_origin.sum()),
+        "recovered_ids": [i for i, f in zip(ids, found) if f],
+        "missed_ids": [i for i, f in zip(ids, found) if not f],
+    }

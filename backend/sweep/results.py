@@ -30,6 +30,7 @@ FIGURES = (
     "ate_sim3_rmse_cm",
     "rpe_cm_per_m",
     "rmse_cm",
+    "keyframe_ate_rmse_cm",
     "frames",
     "frames_tracked",
     "frames_evaluated",
@@ -40,16 +41,19 @@ FIGURES = (
     "points",
     "lines",
 )
+PLANE_FIGURES = {"planes_seen": "seen", "planes_recovered": "recovered"}  # rendered scenes (metrics.json's plane_recovery)
 VIO_FIGURES = {"vio_initialized": "initialized", "vio_init_time_s": "init_time_s", "vio_ate_after_init_cm": "ate_after_init_cm", "vio_scale_error_pct": "scale_error_pct"}
 STAGES = ("point_dm", "tracking", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame")
 TIMES = (*(f"time_{stage}_ms" for stage in STAGES), "wall_s")
-COLUMNS = (*PARAMETERS, "status", "error", *FIGURES, *VIO_FIGURES, *TIMES)
+COLUMNS = (*PARAMETERS, "status", "error", *FIGURES, *PLANE_FIGURES, *VIO_FIGURES, *TIMES)
 
 
 def ok_row(spec: RunSpec, metrics: Mapping[str, Any], *, wall_s: float) -> dict[str, Any]:
     """The row of a finished run: `metrics` as its metrics.json holds them (JSON values)."""
     row = _blank(spec, OK)
     row.update({key: metrics.get(key) for key in FIGURES})
+    planes = metrics.get("plane_recovery") or {}
+    row.update({key: planes.get(name) for key, name in PLANE_FIGURES.items()})
     vio = metrics.get("vio") or {}
     row.update({key: vio.get(name) for key, name in VIO_FIGURES.items()})
     timing = metrics.get("timing_ms") or {}

@@ -106,6 +106,10 @@ def test_stereo_run_writes_trajectory_metrics_and_map(room_run: dict) -> None:
     assert metrics["points"] > 0 and metrics["planes"] >= 1
     assert isinstance(metrics["messages"], list)
     assert metrics["lost_frames"] >= 0 and metrics["reinitializations"] >= 0
+    recovery = metrics["plane_recovery"]  # the room's floor and walls fill the first keyframes
+    assert recovery["seen"] >= 2 and 1 <= recovery["recovered"] <= recovery["seen"]
+    assert sorted(recovery["recovered_ids"] + recovery["missed_ids"]) == sorted(set(recovery["recovered_ids"] + recovery["missed_ids"]))
+    assert len(recovery["recovered_ids"]) == recovery["recovered"] and len(recovery["missed_ids"]) == recovery["seen"] - recovery["recovered"]
 
     timing = metrics["timing_ms"]
     for key in CONTRACT_TIMING:
