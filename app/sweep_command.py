@@ -34,9 +34,14 @@ AXIS_OPTIONS = {
     "seeds": ("0-4|N,...", "seeds: numbers and ranges (default 0)"),
     "speeds": ("F,...", "rendered scenes: motion speeds (default 1)"),
     "strides": ("N,...", "rendered scenes: keep every N-th frame (default 1)"),
+    "windows": ("N,...", "keyframes optimized per step, as run's --window (default 10)"),
     "duration": ("SECONDS", "rendered scenes: seconds of motion (default 30)"),
     "frames": ("N", "only the first N frames of every input (default all)"),
+    "keyframes": ("N", "stop every run after N keyframes, as run's --keyframes (default: at the end)"),
+    "trajectory_frame": ("truth|camera", "what the written trajectories are poses of, as run's --trajectory-frame (default truth)"),
     "calib": ("PATH", "datasets that hold no calibration (ROS bags): read with this one, as run's --calib"),
+    "topics": ("NAME=TOPIC,...", "ROS bags: read cam0, cam1, imu0, groundtruth from these topics, as run's --topic"),
+    "segmenter_model": ("FILE.onnx", "the learned segmenter's model, as run's --segmenter-model (default the shipped one)"),
 }
 OUTPUTS = ("results.csv", "results.json", "table.md", "ate_by_variant.png", "time_by_stage.png")
 
@@ -49,7 +54,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--config", "--matrix", dest="config", type=path, default=None, metavar="FILE.toml", help="the matrix as TOML (keys: the axis options' names); axis options given besides replace its axes"
     )
     for name, (metavar, text) in AXIS_OPTIONS.items():
-        p.add_argument(f"--{name}", type=name_or_path, default=None, metavar=metavar, help=text)
+        p.add_argument(f"--{name.replace('_', '-')}", dest=name, type=name_or_path, default=None, metavar=metavar, help=text)
+    p.add_argument("--dense", action="store_const", const=True, default=None, help="image inputs: also fuse each run's keyframes into mesh.ply, as run's --dense")
     p.add_argument("--out", required=True, type=path, help="the sweep's folder: one folder per run and the results (created if missing; a finished run there is not run again)")
     p.add_argument("--address", default=None, metavar="RAY_ADDRESS", help="run on this existing Ray cluster (e.g. ray://head:10001 or auto); every node must see --out")
     p.add_argument("--workers", type=int, default=None, metavar="N", help="at most N runs at once (on this machine: Ray's CPUs; default all cores)")
@@ -63,7 +69,7 @@ def matrix_runs(args: argparse.Namespace) -> list[Any]:
     from app.errors import UsageError
     from backend.sweep.matrix import MatrixError, matrix_from, read_toml
 
-    given = {name: getattr(args, name) for name in AXIS_OPTIONS if getattr(args, name) is not None}
+    given = {name: getattr(args, name) for name in (*AXIS_OPTIONS, "dense") if getattr(args, name, None) is not None}
     try:
         file_values = read_toml(args.config) if args.config is not None else None
         return matrix_from(file_values, given, file=args.config).runs()

@@ -1,5 +1,7 @@
 """A sweep's matrix: the axes `coplanar sweep` varies (inputs, variants, modes, segmenters,
-seeds, speeds, strides) and the runs they span, one :class:`RunSpec` each.
+seeds, speeds, strides, windows) and the runs they span, one :class:`RunSpec` each, with the
+options every run shares (`coplanar run`'s: duration, frames, keyframes, dense, trajectory
+frame, a dataset's calibration and topics, the learned segmenter's model).
 
 The axes come from the command line (comma lists as text: `--seeds 0-4`, `--variants
 P-wo,PL-w`) or from a TOML file (the same names as keys, lists or the same text), through one
@@ -30,8 +32,30 @@ DEFAULT_SEGMENTER = {"stereo": "geometric", "vio": "learned"}  # as backend.pipe
 DEFAULT_DURATION_S = 30.0  # as `coplanar run`
 MAX_DURATION_S = 3600.0  # as `coplanar run` (app/sources.py)
 MAX_SPEED = 10.0
+MAX_WINDOW = 1000
 MAX_RUNS = 100_000
-AXES = ("scenes", "datasets", "variants", "modes", "segmenters", "seeds", "speeds", "strides", "duration", "frames", "calib")
+DEFAULT_WINDOW = 10  # as `coplanar run --window`
+TRAJECTORY_FRAMES = ("truth", "camera")  # as `coplanar run --trajectory-frame`
+TOPIC_NAMES = ("cam0", "cam1", "imu0", "groundtruth")  # as `coplanar run --topic` (backend.data.rosbag)
+AXES = (
+    "scenes",
+    "datasets",
+    "variants",
+    "modes",
+    "segmenters",
+    "seeds",
+    "speeds",
+    "strides",
+    "windows",
+    "duration",
+    "frames",
+    "keyframes",
+    "dense",
+    "trajectory_frame",
+    "calib",
+    "topics",
+    "segmenter_model",
+)
 
 
 class MatrixError(ValueError):
@@ -44,8 +68,12 @@ class RunSpec:
     a `dataset` path, absolute), `variant`, `mode` (stereo | vio), `segmenter` (geometric |
     learned | oracle; resolved, never the mode's implicit default), `seed`, and for rendered
     scenes `duration_s` (seconds of motion), `speed` (times the scene's speed) and `stride`
-    (every N-th frame); `frames`: only the first N frames (None: all); `calib`: the calibration
-    a dataset that holds none is read with (a ROS bag's `--calib`; None: none)."""
+    (every N-th frame); `window`: keyframes optimized per step; `frames`: only the first N
+    frames (None: all); `keyframes`: stop after N keyframes (None: at the end); `dense`: also
+    fuse the keyframes' depth (mesh.ply); `trajectory_frame`: truth | camera; `calib`: the
+    calibration a dataset that holds none is read with (a ROS bag's `--calib`; None: none);
+    `topics`: (name, topic) pairs a bag is read with; `segmenter_model`: the learned
+    segmenter's model file (None: the shipped one). As `coplanar run`'s options of those names."""
 
     scene: str | None
     dataset: str | None
@@ -58,6 +86,12 @@ class RunSpec:
     stride: int = 1
     frames: int | None = None
     calib: str | None = None
+    window: int = DEFAULT_WINDOW
+    keyframes: int | None = None
+    dense: bool = False
+    trajectory_frame: str = "truth"
+    topics: tuple[tuple[str, str], ...] = ()
+    segmenter_model: str | None = None
 
     @property
     def input_name(self) -> str:
@@ -71,17 +105,26 @@ class RunSpec:
 
     @property
     def sequence(self) -> str:
-        """The input with what changes its frames (speed, stride, frame limit): a row of
-        the results table."""
-        extra = [f"×{self.speed:g} speed" if self.speed != 1.0 else "", f"stride {self.stride}" if self.stride != 1 else "", f"{self.frames} frames" if self.frames is not None else ""]
+        """The input with what changes its frames or their estimate besides the variant
+        (speed, stride, window, frame and keyframe limits): a row of the results table."""
+        extra = [
+            f"×{self.speed:g} speed" if self.speed != 1.0 else "",
+            f"stride {self.stride}" if self.stride != 1 else "",
+            f"window {self.window}" if self.window != DEFAULT_WINDOW else "",
+            f"{self.frames} frames" if self.frames is not None else "",
+            f"{self.keyframes} keyframes" if self.keyframes is not None else "",
+        ]
         extra = [e for e in extra if e]
         return f"{self.input_name} ({', '.join(extra)})" if extra else self.input_name
 
     @property
     def run_id(self) -> str:
         """The run's folder name, from its parameters: `INPUT_VARIANT_MODE_SEGMENTER_seedN`,
-        then for a rendered scene its duration (`30s`), and `speedF`, `strideN`, `framesN`
-        where not the default. The same parameters give the same name in every sweep (resume)."""
+        then for a rendered scene its duration (`30s`), and `speedF`, `strideN`, `windowN`,
+        `framesN`, `keyframesN`, `dense`, `camera` (the trajectory frame) where not the
+        default. The same parameters give the same name in every sweep (resume); the
+        calibration, topics and segmenter model are not in it but in run.json, which resume
+        compares."""
         parts = [self.input_name, str(self.variant), self.mode, self.segmenter, f"seed{self.seed}"]
         if self.duration_s is not None:
             parts.append(f"{self.duration_s:g}s")
@@ -89,8 +132,16 @@ class RunSpec:
             parts.append(f"speed{self.speed:g}")
         if self.stride != 1:
             parts.append(f"stride{self.stride}")
+        if self.window != DEFAULT_WINDOW:
+            parts.append(f"window{self.window}")
         if self.frames is not None:
             parts.append(f"frames{self.frames}")
+        if self.keyframes is not None:
+            parts.append(f"keyframes{self.keyframes}")
+        if self.dense:
+            parts.append("dense")
+        if self.trajectory_frame != "truth":
+            parts.append(self.trajectory_frame)
         return re.sub(r"[^A-Za-z0-9._+-]", "-", "_".join(parts))
 
     def parameters(self) -> dict[str, Any]:
@@ -110,6 +161,12 @@ class RunSpec:
             "stride": self.stride,
             "frames_limit": self.frames,
             "calib": self.calib,
+            "window": self.window,
+            "keyframes_limit": self.keyframes,
+            "dense": self.dense,
+            "trajectory_frame": self.trajectory_frame,
+            "topics": ",".join(f"{name}={topic}" for name, topic in self.topics) or None,
+            "segmenter_model": self.segmenter_model,
         }
 
     def config(self) -> EngineConfig:
@@ -121,8 +178,18 @@ class RunSpec:
         else:
             from backend.data.source import ReaderOptions
 
-            options = {"dataset": self.dataset, "reader": ReaderOptions(calib=None if self.calib is None else pathlib.Path(self.calib))}
-        return EngineConfig(**options, frames=self.frames, seed=self.seed, variant=self.variant, mode=self.mode, segmenter=self.segmenter)  # type: ignore[arg-type]
+            options = {"dataset": self.dataset, "reader": ReaderOptions(calib=None if self.calib is None else pathlib.Path(self.calib), topics=self.topics)}
+        model = None if self.segmenter_model is None else pathlib.Path(self.segmenter_model)
+        return EngineConfig(
+            **options,
+            frames=self.frames,
+            seed=self.seed,
+            variant=self.variant,
+            window=self.window,
+            mode=self.mode,  # type: ignore[arg-type]
+            segmenter=self.segmenter,  # type: ignore[arg-type]
+            segmenter_model=model,
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,13 +205,19 @@ class SweepMatrix:
     seeds: tuple[int, ...] = (0,)
     speeds: tuple[float, ...] = (1.0,)
     strides: tuple[int, ...] = (1,)
+    windows: tuple[int, ...] = (DEFAULT_WINDOW,)
     duration_s: float = DEFAULT_DURATION_S
     frames: int | None = None
+    keyframes: int | None = None
+    dense: bool = False
+    trajectory_frame: str = "truth"
     calib: str | None = None
+    topics: tuple[tuple[str, str], ...] = ()
+    segmenter_model: str | None = None
 
     def runs(self) -> list[RunSpec]:
         """Every run, inputs outermost (scenes, then datasets), then seeds, modes,
-        segmenters, speeds, strides and variants innermost; MatrixError for two runs with
+        segmenters, speeds, strides, windows and variants innermost; MatrixError for two runs with
         one folder name (two datasets of one folder name) or more than MAX_RUNS runs."""
         from backend.data.scenes import SCENE_NAMES
 
@@ -154,10 +227,12 @@ class SweepMatrix:
         for (scene, dataset), seed, mode in itertools.product(inputs, self.seeds, self.modes):
             segmenters = self.segmenters or (DEFAULT_SEGMENTER[mode],)
             motions = itertools.product(self.speeds, self.strides) if scene is not None else [(1.0, 1)]
-            for segmenter, (speed, stride), variant in itertools.product(segmenters, list(motions), self.variants):
+            for segmenter, (speed, stride), window, variant in itertools.product(segmenters, list(motions), self.windows, self.variants):
                 duration = self.duration_s if scene is not None else None
-                calib = self.calib if dataset is not None else None
-                runs.append(RunSpec(scene, dataset, variant, mode, segmenter, seed, duration_s=duration, speed=speed, stride=stride, frames=self.frames, calib=calib))
+                shared = {"frames": self.frames, "keyframes": self.keyframes, "dense": self.dense, "trajectory_frame": self.trajectory_frame}
+                reading = {"calib": self.calib, "topics": self.topics} if dataset is not None else {}
+                model = {"segmenter_model": self.segmenter_model} if segmenter == "learned" else {}
+                runs.append(RunSpec(scene, dataset, variant, mode, segmenter, seed, duration_s=duration, speed=speed, stride=stride, window=window, **shared, **reading, **model))  # type: ignore[arg-type]
                 if len(runs) > MAX_RUNS:
                     raise MatrixError(f"more than {MAX_RUNS} runs: split the sweep")
         seen: dict[str, RunSpec] = {}
@@ -181,7 +256,13 @@ def parse_axes(values: Mapping[str, object], *, where: str = "--", base: pathlib
     for key, value in values.items():
         if key not in AXES:
             raise MatrixError(f"{where}{key}: not a sweep axis (expected {', '.join(AXES)})")
-        name = f"{where}{key}"
+        name = f"{where}{key.replace('_', '-') if where == '--' else key}"
+        if key == "dense":
+            fields["dense"] = _flag(value, name)
+            continue
+        if key == "topics":
+            fields["topics"] = _topics(value, name)
+            continue
         items = _items(value, name)
         if key == "scenes":
             fields["scenes"] = tuple(_scene(s, name, base) for s in items)
@@ -199,6 +280,14 @@ def parse_axes(values: Mapping[str, object], *, where: str = "--", base: pathlib
             fields["speeds"] = tuple(_unique([_number(s, name, low=0.0, high=MAX_SPEED) for s in items]))
         elif key == "strides":
             fields["strides"] = tuple(_unique([_integer(s, name, low=1) for s in items]))
+        elif key == "windows":
+            fields["windows"] = tuple(_unique([_integer(w, name, low=2, high=MAX_WINDOW) for w in items]))
+        elif key == "keyframes":
+            fields["keyframes"] = _integer(_single(items, name), name, low=1)
+        elif key == "trajectory_frame":
+            fields["trajectory_frame"] = _choice(_single(items, name), name, TRAJECTORY_FRAMES)
+        elif key == "segmenter_model":
+            fields["segmenter_model"] = _model(_single(items, name), name, base)
         elif key == "duration":
             fields["duration_s"] = _number(_single(items, name), name, low=0.0, high=MAX_DURATION_S, unit=" seconds")
         elif key == "frames":
@@ -248,6 +337,46 @@ def _items(value: object, name: str) -> list[object]:
         if not isinstance(item, (str, int, float)):
             raise MatrixError(f"{name}: {type(item).__name__} {item!r} inside the list: expected text or numbers")
     return items
+
+
+def _flag(value: object, name: str) -> bool:
+    """true / false (TOML), or the text `true` / `false`."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.strip().lower() in ("true", "false"):
+        return value.strip().lower() == "true"
+    raise MatrixError(f"{name}: {value!r}: expected true or false")
+
+
+def _topics(value: object, name: str) -> tuple[tuple[str, str], ...]:
+    """Topic overrides: a TOML table {cam0 = "/left"}, or `NAME=TOPIC` items (a list or comma
+    text); names of TOPIC_NAMES, topics starting with `/`."""
+    if isinstance(value, dict):
+        pairs = [(str(k), v) for k, v in value.items()]
+    else:
+        pairs = []
+        for item in _items(value, name):
+            key, sep, topic = _text(item, name).partition("=")
+            if not sep:
+                raise MatrixError(f"{name}: {item!r}: expected NAME=TOPIC")
+            pairs.append((key.strip(), topic.strip()))
+    checked: dict[str, str] = {}
+    for key, topic in pairs:
+        if key not in TOPIC_NAMES:
+            raise MatrixError(f"{name}: {key!r} is not one of {', '.join(TOPIC_NAMES)}")
+        if not isinstance(topic, str) or not topic.startswith("/") or "\x00" in topic:
+            raise MatrixError(f"{name}: {key}: {topic!r} is not a topic name (/...)")
+        checked[key] = topic
+    return tuple(sorted(checked.items()))
+
+
+def _model(item: object, name: str, base: pathlib.Path | None) -> str:
+    """An existing model file (as an absolute path)."""
+    text = _text(item, name)
+    path = _resolve(text, base)
+    if not _is(path, name, text, file=True):
+        raise MatrixError(f"{name}: {text}: no such file")
+    return str(path)
 
 
 def _unique(items: Sequence[Any]) -> list[Any]:

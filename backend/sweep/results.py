@@ -24,7 +24,28 @@ from backend.sweep.matrix import RunSpec
 
 OK = "ok"
 FAILED = "failed"
-PARAMETERS = ("run_id", "input", "sequence", "input_kind", "input_path", "variant", "mode", "segmenter", "seed", "duration_s", "speed", "stride", "frames_limit", "calib")
+PARAMETERS = (
+    "run_id",
+    "input",
+    "sequence",
+    "input_kind",
+    "input_path",
+    "variant",
+    "mode",
+    "segmenter",
+    "seed",
+    "duration_s",
+    "speed",
+    "stride",
+    "window",
+    "frames_limit",
+    "keyframes_limit",
+    "dense",
+    "trajectory_frame",
+    "calib",
+    "topics",
+    "segmenter_model",
+)
 FIGURES = (
     "ate_rmse_cm",
     "ate_sim3_rmse_cm",

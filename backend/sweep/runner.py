@@ -54,6 +54,7 @@ def execute(spec: RunSpec, out: pathlib.Path) -> Row:
     return its row; a failure (any Exception) is a failed row with its one-line reason, not
     an exception. The function each Ray task runs."""
     from backend.common.atomic import staged_folder
+    from backend.export.output_frame import TrajectoryFrame
     from backend.headless.run import run_headless
 
     start = time.perf_counter()
@@ -62,7 +63,8 @@ def execute(spec: RunSpec, out: pathlib.Path) -> Row:
         if folder.exists():
             return failed_row(spec, f"{folder} exists but holds no finished run ({RUN_RECORD} missing): move it away to run it again")
         with staged_folder(out) as stage:
-            result = run_headless(spec.config(), stage / spec.run_id, progress=False)
+            frame = TrajectoryFrame(spec.trajectory_frame)
+            result = run_headless(spec.config(), stage / spec.run_id, keyframes=spec.keyframes, dense=spec.dense, trajectory_frame=frame, progress=False)
             record = {"run_id": spec.run_id, "parameters": spec.parameters(), "wall_s": result.wall_s}
             (stage / spec.run_id / RUN_RECORD).write_text(json.dumps(record, indent=2) + "\n")
         return ok_row(spec, result.metrics, wall_s=result.wall_s)
@@ -78,14 +80,35 @@ def reason(error: BaseException) -> str:
 
 def finished_row(spec: RunSpec, out: pathlib.Path) -> Row | None:
     """The row of `spec`'s run from its folder in `out` when it is finished (its run.json and
-    metrics.json there), else None."""
+    metrics.json there), else None; a failed row when the folder holds a finished run of
+    other parameters (a calibration, topics or segmenter model the folder name does not
+    tell), which is kept, not run over."""
     folder = out / spec.run_id
     try:
         record = json.loads((folder / RUN_RECORD).read_text())
         metrics = json.loads((folder / "metrics.json").read_text())
     except (OSError, ValueError):
         return None
+    recorded = record.get("parameters") if isinstance(record, dict) else None
+    differ = _differing(recorded if isinstance(recorded, dict) else {}, spec.parameters())
+    if differ:
+        return failed_row(spec, f"{folder} holds a finished run with other {', '.join(differ)}: move it away to run it again")
     return ok_row(spec, metrics, wall_s=float(record["wall_s"]))
+
+
+_LATER_PARAMETERS = {"window": 10, "keyframes_limit": None, "dense": False, "trajectory_frame": "truth", "topics": None, "segmenter_model": None}  # absent from older run.json files
+_PATHS = ("input_path", "calib", "segmenter_model")  # compared by name: the same sweep resumes where its files are mounted elsewhere
+
+
+def _differing(recorded: dict[str, Any], wanted: dict[str, Any]) -> list[str]:
+    """The parameters in which a run's run.json (`recorded`) differs from `wanted`; a
+    parameter older folders lack counts as its default value; paths count by their name."""
+
+    def value(parameters: dict[str, Any], key: str) -> Any:
+        v = parameters.get(key, _LATER_PARAMETERS.get(key))
+        return pathlib.PurePath(v).name if key in _PATHS and isinstance(v, str) else v
+
+    return [key for key in wanted if value(recorded, key) != value(wanted, key)]
 
 
 def serial_runs(specs: Sequence[RunSpec], out: pathlib.Path) -> Iterator[tuple[RunSpec, Row]]:

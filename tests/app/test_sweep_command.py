@@ -195,3 +195,40 @@ def test_a_bag_sweeps_with_its_calibration_as_run_reads_it(tmp_path: pathlib.Pat
         assert cli.main(["run", "--dataset", str(bag), "--calib", str(calib), "--variant", "P-wo", "--out", str(tmp_path / "run")]) == 0
     run_metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert row["ate_rmse_cm"] == pytest.approx(run_metrics["ate_rmse_cm"], rel=1e-12)
+
+
+def test_run_options_reach_each_run_as_run_takes_them(tmp_path: pathlib.Path) -> None:
+    """`--windows`, `--keyframes` and `--trajectory-frame` make the run `coplanar run` makes with
+    `--window`, `--keyframes` and `--trajectory-frame`: the same trajectory file."""
+    options = ["--windows", "3", "--keyframes", "3", "--trajectory-frame", "camera"]
+    rc, _, err = _sweep(["--scenes", "room", "--duration", "1", "--variants", "P-wo", *options, "--serial", "--out", str(tmp_path / "sweep")])
+    assert rc == 0, err
+    (row,) = _rows(tmp_path / "sweep")
+    assert row["run_id"] == "room_P-wo_stereo_geometric_seed0_1s_window3_keyframes3_camera" and row["keyframes"] == 3
+    assert (row["window"], row["keyframes_limit"], row["trajectory_frame"], row["dense"]) == (3, 3, "camera", False)
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        argv = ["run", "--scene", "room", "--duration", "1", "--variant", "P-wo", "--window", "3", "--keyframes", "3", "--trajectory-frame", "camera"]
+        assert cli.main([*argv, "--out", str(tmp_path / "run")]) == 0
+    swept = tmp_path / "sweep" / row["run_id"]
+    assert (swept / "trajectory.txt").read_bytes() == (tmp_path / "run" / "trajectory.txt").read_bytes()
+    assert json.loads((swept / "metrics.json").read_text())["trajectory_frame"] == json.loads((tmp_path / "run" / "metrics.json").read_text())["trajectory_frame"]
+
+
+def test_bag_topics_reach_the_reader_and_a_folder_of_other_topics_is_kept(tmp_path: pathlib.Path) -> None:
+    """`--topics` is run's `--topic` for every bag of the sweep; a finished run's folder whose
+    run.json names other topics (not in the folder name) is a failed row, not resumed as if
+    it were this run, and is left as it was."""
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert cli.main(["render", "--scene", "boxes", "--duration", "1", "--format", "rosbag2", "--out", str(tmp_path / "bag")]) == 0
+    bag, calib = tmp_path / "bag" / "data", tmp_path / "bag" / "calib"
+    common = ["--datasets", str(bag), "--calib", str(calib), "--variants", "P-wo", "--serial"]
+    rc, _, err = _sweep([*common, "--topics", "cam1=/no/such/topic", "--out", str(tmp_path / "wrong")])
+    assert rc == 1 and "/no/such/topic" in _rows(tmp_path / "wrong")[0]["error"], err
+    rc, _, err = _sweep([*common, "--out", str(tmp_path / "sweep")])
+    assert rc == 0, err
+    (folder,) = [p for p in (tmp_path / "sweep").iterdir() if p.is_dir()]
+    before = (folder / "trajectory.txt").read_bytes()
+    rc, _, err = _sweep([*common, "--topics", "cam0=/cam0/image_raw", "--out", str(tmp_path / "sweep")])
+    (row,) = _rows(tmp_path / "sweep")
+    assert rc == 1 and row["status"] == "failed" and "holds a finished run with other topics" in row["error"], err
+    assert (folder / "trajectory.txt").read_bytes() == before

@@ -71,6 +71,14 @@ def test_toml_file_with_options_taking_its_place(tmp_path: pathlib.Path) -> None
         ({"frames": "2.5"}, ["--frames", "not an integer"]),
         ({"scenes": "room,"}, ["--scenes", "empty"]),
         ({"colour": "red"}, ["--colour", "not a sweep axis"]),
+        ({"windows": "1"}, ["--windows", "1 is outside [2, 1000]"]),
+        ({"keyframes": "0"}, ["--keyframes", "at least 1"]),
+        ({"trajectory_frame": "imu"}, ["--trajectory-frame", "'imu' is not one of truth, camera"]),
+        ({"dense": "yes"}, ["--dense", "true or false"]),
+        ({"topics": "cam0"}, ["--topics", "NAME=TOPIC"]),
+        ({"topics": "left=/cam0/image_raw"}, ["--topics", "'left' is not one of cam0, cam1, imu0, groundtruth"]),
+        ({"topics": "cam0=image"}, ["--topics", "cam0", "not a topic name"]),
+        ({"segmenter_model": "/no/model.onnx"}, ["--segmenter-model", "no such file"]),
     ],
 )
 def test_bad_values_name_the_option(values: dict[str, object], words: list[str]) -> None:
@@ -115,3 +123,32 @@ def test_paths_that_the_file_system_refuses_are_one_line() -> None:
         matrix_from(None, {"datasets": "~nobody-of-that-name/data"}).runs()
     with pytest.raises(MatrixError, match="File name too long"):
         matrix_from(None, {"scenes": "x/" * 3000}).runs()
+
+
+def test_run_options_reach_every_run_and_its_folder_name(tmp_path: pathlib.Path) -> None:
+    """The options every run shares (`coplanar run`'s): windows an axis, keyframes, dense and
+    the trajectory frame in the folder name; a bag's topics and the segmenter model in the
+    config (and run.json), where they apply."""
+    model = tmp_path / "seg.onnx"
+    model.write_bytes(b"")
+    shared = {"keyframes": "3", "dense": True, "trajectory_frame": "camera", "segmenter_model": str(model)}
+    fields = parse_axes({"scenes": "room", "variants": "PL-w", "windows": "5,10", "segmenters": "geometric,learned", **shared})
+    runs = SweepMatrix(**fields).runs()
+    assert [r.run_id for r in runs] == [
+        "room_PL-w_stereo_geometric_seed0_30s_window5_keyframes3_dense_camera",
+        "room_PL-w_stereo_geometric_seed0_30s_keyframes3_dense_camera",
+        "room_PL-w_stereo_learned_seed0_30s_window5_keyframes3_dense_camera",
+        "room_PL-w_stereo_learned_seed0_30s_keyframes3_dense_camera",
+    ]
+    assert runs[0].sequence == "room (window 5, 3 keyframes)" and runs[1].sequence == "room (3 keyframes)"
+    assert runs[0].config().window == 5 and runs[0].config().segmenter_model is None  # the model: the learned segmenter's only
+    assert runs[2].config().segmenter_model == model and runs[2].parameters()["segmenter_model"] == str(model)
+    (tmp_path / "V1_01.bag").write_bytes(b"")
+    toml = tmp_path / "sweep.toml"
+    toml.write_text('datasets = ["V1_01.bag"]\nvariants = ["P-wo"]\n[topics]\ncam0 = "/left/image"\nimu0 = "/imu"\n')
+    (bag,) = matrix_from(read_toml(toml), {}, file=toml).runs()
+    assert bag.config().reader.topics == (("cam0", "/left/image"), ("imu0", "/imu"))
+    assert bag.parameters()["topics"] == "cam0=/left/image,imu0=/imu" and bag.run_id == "V1_01_P-wo_stereo_geometric_seed0"
+    assert matrix_from(None, {"datasets": str(tmp_path / "V1_01.bag"), "topics": "imu0=/imu, cam0=/left/image"}).runs()[0].topics == bag.topics
+    scene, _ = matrix_from(read_toml(toml), {"scenes": "room"}, file=toml).runs()  # the topics: the bag's only
+    assert scene.scene == "room" and scene.topics == () and scene.config().reader.topics == ()
