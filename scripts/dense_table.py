@@ -1,8 +1,9 @@
-"""The dense-check table (docs/results/dense.md): `coplanar run --dense` for every variant on a rendered scene
-(default `room`, 30 s, seed 0, one run each): the TSDF mesh's distance to the true planes
-(median, 90th percentile, share within 2 cm) and the fusion time per keyframe.
+"""The dense-check table (docs/results/dense.md) as a sweep (sweeps/dense_table.toml, run as
+`coplanar sweep --config sweeps/dense_table.toml`): `coplanar run --dense` for every variant on a
+rendered scene (default `room`, 30 s, seed 0, one run each): the TSDF mesh's distance to the true
+planes (median, 90th percentile, share within 2 cm) and the fusion time per keyframe.
 
-    .venv/bin/python scripts/dense_table.py [--scene room] [--duration 30]
+    .venv/bin/python scripts/dense_table.py [--scene room] [--duration 30] [--out DIR] [--workers 1 | --serial | --address ADDR]
 
 Writes docs/pipeline/dense.json and replaces the dense-table block of docs/results/dense.md.
 """
@@ -10,47 +11,33 @@ Writes docs/pipeline/dense.json and replaces the dense-table block of docs/resul
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import pathlib
 import sys
-import tempfile
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
+from table_sweep import SWEEPS, add_sweep_options, f, publish, sweep_runs
 
-from euroc_table import _f, add_no_doc_option, publish
-
-from app import cli
-from backend.optim.variant import VARIANTS
+SWEEP = SWEEPS / "dense_table.toml"
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--scene", default="room")
-    p.add_argument("--duration", type=float, default=30.0)
-    add_no_doc_option(p, "docs/results/dense.md")
+    p.add_argument("--scene", default=None, help=f"the scene (default: {SWEEP.name}'s, room)")
+    p.add_argument("--duration", type=float, default=None, help=f"seconds of motion (default: {SWEEP.name}'s, 30)")
+    add_sweep_options(p, page="docs/results/dense.md")
     args = p.parse_args()
+    options = (["--scenes", args.scene] if args.scene is not None else []) + (["--duration", f"{args.duration:g}"] if args.duration is not None else [])
     runs, rows = [], []
-    for variant in VARIANTS:
-        with tempfile.TemporaryDirectory() as tmp:
-            out = pathlib.Path(tmp) / "out"
-            argv = ["run", "--scene", args.scene, "--variant", variant, "--duration", str(args.duration), "--dense", "--out", str(out)]
-            if cli.main(argv) != 0:
-                raise SystemExit(f"coplanar {' '.join(argv)} failed")
-            m = json.loads((out / "metrics.json").read_text())
+    for m in sweep_runs(SWEEP, args, options):
         d = m["dense"]
         dist = d["distance_to_true_planes_cm"]
-        runs.append({"variant": variant, "ate_rmse_cm": m["ate_rmse_cm"], "keyframe_ate_rmse_cm": m["keyframe_ate_rmse_cm"], "dense": d})
+        runs.append({"variant": m["variant"], "ate_rmse_cm": m["ate_rmse_cm"], "keyframe_ate_rmse_cm": m["keyframe_ate_rmse_cm"], "dense": d})
         rows.append(
-            f"| {variant} | {_f(m['keyframe_ate_rmse_cm'])} | {_f(dist['median'])} | {_f(dist['p90'])} | {100 * dist['within_2cm']:.1f} | {d['triangles']} | {_f(d['fusion_ms_per_keyframe'], 1)} |"
+            f"| {m['variant']} | {f(m['keyframe_ate_rmse_cm'])} | {f(dist['median'])} | {f(dist['p90'])} | {100 * dist['within_2cm']:.1f} | {d['triangles']} | {f(d['fusion_ms_per_keyframe'], 1)} |"
         )
         print(rows[-1], flush=True)
+    scene, duration = (runs and m["row"]["input"]), (runs and m["row"]["duration_s"])
     body = "\n".join(
         [
-            f"`{args.scene}`, {args.duration:g} s, one run per variant (`.venv/bin/python scripts/dense_table.py`): every keyframe's rendered depth fused "
+            f"`{scene}`, {duration:g} s, one run per variant (`.venv/bin/python scripts/dense_table.py`): every keyframe's rendered depth fused "
             "into a TSDF (3 cm voxels) at the keyframe's final estimated pose (`coplanar run --dense`); the distance of the mesh's vertices to the "
             "nearest true plane (cm), and the fusion time per keyframe (ms, the integration alone).",
             "",
@@ -59,7 +46,7 @@ def main() -> int:
             *rows,
         ]
     )
-    return publish({"scene": args.scene, "duration_s": args.duration, "runs": runs}, body, json_name="dense.json", block="dense-table", write_doc=not args.no_doc)
+    return publish({"scene": scene, "duration_s": duration, "runs": runs}, body, json_name="dense.json", block="dense-table", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

@@ -214,8 +214,8 @@ def main() -> int:
     for name, rows in by_set.items():
         results[name] = summarize(rows)
     results["all rendered"] = summarize([r for rows in by_set.values() for r in rows])
-    from euroc_table import publish
     from segmentation_gallery import PAIRS, overlay, real_pairs
+    from table_sweep import publish
 
     if PAIRS.is_dir() and not args.validation:
         import cv2

@@ -1,8 +1,9 @@
-"""How the VIO start does beyond the table's paths: every rendered scene with its table path
-(seed 0) and other random paths (`--seed`), run exactly as
+"""How the VIO start does beyond the table's paths, as a sweep (sweeps/vio_start_check.toml, run as
+`coplanar sweep --config sweeps/vio_start_check.toml`): every rendered scene with its table path
+(seed 0) and other random paths (seeds 1, 2), each run exactly
 `coplanar run --mode vio --scene S --seed N --variant V --speed 2 --duration 30 [--frames F]`.
 
-    .venv/bin/python scripts/vio_start_check.py [--seeds 0,1,2] [--variants P-wo,PL-w] [--seconds 30]
+    .venv/bin/python scripts/vio_start_check.py [--seeds 0-2] [--variants P-wo,PL-w] [--seconds 30] [--out DIR] [--workers 1 | --serial | --address ADDR]
 
 Writes docs/vio/start_check.json and replaces the vio-start block of docs/results/vio.md. Per
 run: the first initialization (s from the first frame; none by the end), lost frames, restarts
@@ -14,20 +15,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import pathlib
 import statistics
 import sys
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from table_sweep import ROOT, SWEEPS, add_sweep_options, f, publish, sweep_runs
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
-
-from euroc_table import add_no_doc_option, publish
-from vio_table import _f, run_one
-
+SWEEP = SWEEPS / "vio_start_check.toml"
 SPEED = 2.0
 FPS = 20.0  # the rendered scenes' camera rate
 
@@ -36,19 +29,19 @@ def row(r: dict, *, seconds: float) -> str:
     """One table row from a run's record."""
     init = r["init_time_s"]
     return (
-        f"| {r['seed']} | {r['scene']} | {r['variant']} | {_f(init, 2) if init is not None else 'not by ' + format(seconds, 'g') + ' s'} | {r['lost_frames']} | "
-        f"{r['restarts']} | {r['reinitializations']} | {_f(r['gravity_error_refined_deg'])} | {_f(r['bias_gyro_error_refined_pct'], 1)} | "
-        f"{_f(r['ate_after_init_cm'])} | {_f(r['ate_rmse_cm'])} |"
+        f"| {r['seed']} | {r['scene']} | {r['variant']} | {f(init, 2) if init is not None else 'not by ' + format(seconds, 'g') + ' s'} | {r['lost_frames']} | "
+        f"{r['restarts']} | {r['reinitializations']} | {f(r['gravity_error_refined_deg'])} | {f(r['bias_gyro_error_refined_pct'], 1)} | "
+        f"{f(r['ate_after_init_cm'])} | {f(r['ate_rmse_cm'])} |"
     )
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--seeds", default="0,1,2")
-    p.add_argument("--scenes", default="room,corridor,boxes")
-    p.add_argument("--variants", default="P-wo,PL-w")
+    p.add_argument("--seeds", default=None, help=f"seeds (default: {SWEEP.name}'s, 0-2)")
+    p.add_argument("--scenes", default=None, help=f"scenes (default: {SWEEP.name}'s, room,corridor,boxes)")
+    p.add_argument("--variants", default=None, help=f"variants (default: {SWEEP.name}'s, P-wo,PL-w)")
     p.add_argument("--seconds", type=float, default=30.0, help="frames from the start that are run (s; at most the 30 s path)")
-    add_no_doc_option(p, "docs/results/vio.md")
+    add_sweep_options(p, page="docs/results/vio.md")
     p.add_argument("--from-json", action="store_true", help="rewrite the vio-start block of docs/results/vio.md from docs/vio/start_check.json without running")
     args = p.parse_args()
     out = ROOT / "docs" / "vio" / "start_check.json"
@@ -56,29 +49,31 @@ def main() -> int:
     if args.from_json:
         saved = json.loads(out.read_text())
         args.seconds, runs = saved["seconds"], saved["runs"]
-    frames = int(round(args.seconds * FPS))
-    for seed in [] if args.from_json else args.seeds.split(","):
-        for scene in args.scenes.split(","):
-            for variant in args.variants.split(","):
-                m = run_one(scene, variant, "vio", duration=30.0, speed=SPEED, extra=("--seed", seed, *(("--frames", str(frames)) if args.seconds < 30.0 else ())))
-                v = m["vio"]
-                runs.append(
-                    {
-                        "seed": int(seed),
-                        "scene": scene,
-                        "variant": variant,
-                        "initialized": v["initialized"],
-                        "init_time_s": v["init_time_s"] if v["initialized"] else None,
-                        "lost_frames": m["lost_frames"],
-                        "reinitializations": m["reinitializations"],
-                        "restarts": sum("starting again" in msg for msg in m["messages"]),
-                        "ate_after_init_cm": v.get("ate_after_init_cm"),
-                        "ate_rmse_cm": m["ate_rmse_cm"],
-                        "gravity_error_refined_deg": v.get("gravity_error_refined_deg"),
-                        "bias_gyro_error_refined_pct": v.get("bias_gyro_error_refined_pct"),
-                    }
-                )
-                print(row(runs[-1], seconds=args.seconds), flush=True)
+    else:
+        given = {"--seeds": args.seeds, "--scenes": args.scenes, "--variants": args.variants}
+        options = [item for option, value in given.items() if value is not None for item in (option, value)]
+        options += ["--frames", str(int(round(args.seconds * FPS)))] if args.seconds < 30.0 else []
+        for m in sweep_runs(SWEEP, args, options):
+            v = m["vio"]
+            runs.append(
+                {
+                    "seed": m["row"]["seed"],
+                    "scene": m["row"]["input"],
+                    "variant": m["variant"],
+                    "initialized": v["initialized"],
+                    "init_time_s": v["init_time_s"] if v["initialized"] else None,
+                    "lost_frames": m["lost_frames"],
+                    "reinitializations": m["reinitializations"],
+                    "restarts": sum("starting again" in msg for msg in m["messages"]),
+                    "ate_after_init_cm": v.get("ate_after_init_cm"),
+                    "ate_rmse_cm": m["ate_rmse_cm"],
+                    "gravity_error_refined_deg": v.get("gravity_error_refined_deg"),
+                    "bias_gyro_error_refined_pct": v.get("bias_gyro_error_refined_pct"),
+                }
+            )
+        runs.sort(key=lambda r: r["seed"])  # the table by seed (the sweep: scenes outermost), otherwise in the sweep's order
+        for r in runs:
+            print(row(r, seconds=args.seconds), flush=True)
     rows = [row(r, seconds=args.seconds) for r in runs]
     ok = sum(r["initialized"] and r["init_time_s"] <= 3.0 for r in runs)
     ates = [r["ate_after_init_cm"] for r in runs if r["ate_after_init_cm"] is not None]

@@ -19,44 +19,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import pathlib
 import sys
-import tempfile
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
-
-import subprocess
-
-from euroc_table import add_no_doc_option, publish
+from table_sweep import ROOT, SWEEPS, add_sweep_options, f, publish, sweep_runs
 
 from backend.optim.variant import VARIANTS
 
-SWEEP = ROOT / "sweeps" / "vio_table.toml"
-
-
-def sweep_metrics(out: pathlib.Path, options: list[str]) -> dict[tuple[str, str, str], dict]:
-    """`coplanar sweep --config sweeps/vio_table.toml --out OUT OPTIONS`, as a user runs it;
-    every finished run's metrics.json by (scene, mode, variant). Exits 2 where the sweep
-    refused its options (it said why)."""
-    process = subprocess.run([sys.executable, "-m", "app.cli", "sweep", "--config", str(SWEEP), "--out", str(out), *options], cwd=ROOT, stdout=subprocess.DEVNULL)
-    if process.returncode == 2:
-        raise SystemExit(2)
-    found = {}
-    for r in json.loads((out / "results.json").read_text()):
-        if r["status"] != "ok":
-            print(f"failed: {r['run_id']}: {r['error']}", file=sys.stderr)
-            continue
-        found[(r["input"], r["mode"], r["variant"])] = json.loads((out / r["run_id"] / "metrics.json").read_text())
-    return found
-
-
-def _f(value: float | None, digits: int = 2) -> str:
-    return "–" if value is None else f"{value:.{digits}f}"
+SWEEP = SWEEPS / "vio_table.toml"
 
 
 def row(scene: str, variant: str, vio: dict, stereo: dict) -> str:
@@ -64,10 +33,10 @@ def row(scene: str, variant: str, vio: dict, stereo: dict) -> str:
     v = vio["vio"]
     al = v.get("alignment") or {}
     return (
-        f"| {scene} | {variant} | {_f(v.get('ate_after_init_cm'))} | {_f(v.get('ate_sim3_after_init_cm'))} | {_f(vio['ate_rmse_cm'])} | {_f(v['scale_error_pct'], 1)} | "
-        f"{_f(v['init_time_s'], 1)} | {_f(al.get('gravity_error_deg'), 2)} / {_f(v.get('gravity_error_refined_deg'), 2)} | {_f(al.get('scale_error_pct'), 1)} | "
-        f"{_f(al.get('bias_gyro_error_pct'), 1)} / {_f(v.get('bias_gyro_error_refined_pct'), 1)} | {vio['lost_frames']} / {vio['reinitializations']} | {_f(vio['timing_ms']['total_per_frame'], 1)} | "
-        f"{_f(stereo['ate_rmse_cm'])} | {_f(stereo['timing_ms']['total_per_frame'], 1)} |"
+        f"| {scene} | {variant} | {f(v.get('ate_after_init_cm'))} | {f(v.get('ate_sim3_after_init_cm'))} | {f(vio['ate_rmse_cm'])} | {f(v['scale_error_pct'], 1)} | "
+        f"{f(v['init_time_s'], 1)} | {f(al.get('gravity_error_deg'), 2)} / {f(v.get('gravity_error_refined_deg'), 2)} | {f(al.get('scale_error_pct'), 1)} | "
+        f"{f(al.get('bias_gyro_error_pct'), 1)} / {f(v.get('bias_gyro_error_refined_pct'), 1)} | {vio['lost_frames']} / {vio['reinitializations']} | {f(vio['timing_ms']['total_per_frame'], 1)} | "
+        f"{f(stereo['ate_rmse_cm'])} | {f(stereo['timing_ms']['total_per_frame'], 1)} |"
     )
 
 
@@ -77,12 +46,7 @@ def main() -> int:
     p.add_argument("--speed", type=float, default=2.0)
     p.add_argument("--scenes", default="room,corridor,boxes")
     p.add_argument("--variants", default=",".join(VARIANTS))
-    p.add_argument("--out", type=pathlib.Path, default=None, help="keep the sweep's folder here (default: a temporary folder)")
-    run = p.add_mutually_exclusive_group()
-    run.add_argument("--workers", type=int, default=1, help="runs at a time (default 1: the times per frame comparable)")
-    run.add_argument("--serial", action="store_true", help="in one process, without Ray")
-    p.add_argument("--address", default=None, help="an existing Ray cluster")
-    add_no_doc_option(p, "docs/results/vio.md")
+    add_sweep_options(p, page="docs/results/vio.md")
     p.add_argument("--from-json", action="store_true", help="rewrite the table from docs/vio/results.json without running")
     p.add_argument("--stereo-from-json", action="store_true", help="run VIO only; the stereo columns from docs/vio/results.json (for a change that leaves the stereo pipeline as it was)")
     args = p.parse_args()
@@ -97,11 +61,11 @@ def main() -> int:
         args.duration, args.speed, results = saved["duration_s"], saved["speed"], saved["runs"]
         rows = [row(r["scene"], r["variant"], r["vio"], r["stereo"]) for r in results]
     if not args.from_json:
-        options = ["--serial"] if args.serial else ["--workers", str(args.workers)] + (["--address", args.address] if args.address else [])
-        options += ["--scenes", args.scenes, "--variants", args.variants, "--duration", f"{args.duration:g}", "--speeds", f"{args.speed:g}"]
+        options = ["--scenes", args.scenes, "--variants", args.variants, "--duration", f"{args.duration:g}", "--speeds", f"{args.speed:g}"]
         options += ["--modes", "vio" if args.stereo_from_json else "vio,stereo"]
-        with tempfile.TemporaryDirectory() as scratch:
-            found = sweep_metrics(args.out or pathlib.Path(scratch), options)
+        found = {(r["row"]["input"], r["row"]["mode"], r["variant"]): r for r in sweep_runs(SWEEP, args, options)}
+        for r in found.values():
+            r.pop("row")
         for scene in args.scenes.split(","):
             for variant in args.variants.split(","):
                 vio = found.get((scene, "vio", variant))
