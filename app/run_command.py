@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import pathlib
+import sys
 
 DEFAULT_DURATION_S = 30.0
 
@@ -114,5 +115,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # a failed run leaves no empty folder it made (its parents stay)
+    for warning in result.metrics.get("warnings") or ():
+        print(f"warning: {warning}", file=sys.stderr)
     print(result.summary)
     return 0

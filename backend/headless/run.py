@@ -245,6 +245,7 @@ def _simulate(engine: SimEngine, config: EngineConfig, out: pathlib.Path, *, key
         "planes": len(snapshot.planes),
         "points": len(snapshot.points),
         "lines": len(snapshot.lines),
+        "warnings": [],
         # DESIGN §7's stages; the simulation has no images, so no feature detection and
         # matching or segmentation: those are null. Means over keyframes, milliseconds.
         "timing_ms": {
@@ -333,6 +334,7 @@ def _track(engine: Any, config: EngineConfig, out: pathlib.Path, *, keyframes: i
         "keyframe_reasons": reasons,
         "timing_ms": stereo_timing(steps),
         "messages": messages,
+        "warnings": list(getattr(source, "warnings", ())),
     }
     if isinstance(source, RenderedPlanes):
         metrics["plane_recovery"] = {"note": PLANE_RECOVERY_NOTE, **plane_recovery(source, snapshot.estimate.timestamp_ns, snapshot.planes)}

@@ -39,6 +39,7 @@ METRICS_KEYS = (
     "reinitializations",
     "timing_ms",
     "messages",
+    "warnings",
     "trajectory_poses",
     "frames_tracked",
     "frames_evaluated",

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import pathlib
 import pickle
 import shutil
@@ -204,6 +205,13 @@ def test_positions_only_ground_truth_gives_no_poses_and_says_so(renders: dict[st
     np.testing.assert_array_equal(bag.ground_truth_positions[0], folder.ground_truth.timestamp_ns)
     np.testing.assert_allclose(bag.ground_truth_positions[1], folder.ground_truth.p_world_body, atol=1e-12)
     assert len(bag.warnings) == 1 and "/leica/position holds positions only" in bag.warnings[0] and "no ATE" in bag.warnings[0]
+    out = tmp_path / "run"
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        assert cli.main(["run", "--dataset", str(target), "--calib", str(renders["rosbag1"][1].calib), "--variant", "P-wo", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["warnings"] == list(bag.warnings) and metrics["ate_rmse_cm"] is None  # said in the run's record, not only on the terminal
+    assert f"warning: {bag.warnings[0]}" in err.getvalue().splitlines()
 
 
 @pytest.mark.parametrize(
