@@ -51,7 +51,7 @@ def execution(args: argparse.Namespace) -> list[str]:
     return ["--workers", str(args.workers)] + (["--address", args.address] if args.address else [])
 
 
-def sweep_runs(config: pathlib.Path, args: argparse.Namespace, options: Sequence[str] = (), *, keep: tuple[str, ...] = ()) -> list[dict]:
+def sweep_runs(config: pathlib.Path, args: argparse.Namespace, options: Sequence[str] = (), *, keep: tuple[str, ...] = (), failed: list[dict] | None = None) -> list[dict]:
     """`coplanar sweep --config CONFIG --out OUT OPTIONS` (OUT: `args.out` or a temporary
     folder), as a user runs it; every finished run's metrics.json with its results row
     (`row`: the run's parameters), its wall time (`wall_s`) and, where `keep` names files, their
@@ -67,6 +67,8 @@ def sweep_runs(config: pathlib.Path, args: argparse.Namespace, options: Sequence
         for row in json.loads((out / "results.json").read_text()):
             if row["status"] != "ok":
                 print(f"failed: {row['run_id']}: {row['error']}", file=sys.stderr)
+                if failed is not None:
+                    failed.append(row)
                 continue
             folder = out / row["run_id"]
             metrics = json.loads((folder / "metrics.json").read_text())
