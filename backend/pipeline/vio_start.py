@@ -111,7 +111,8 @@ class VioStart:
         P, Lm = ctx.map.points, ctx.map.lines
         pts = np.flatnonzero(P.anchor[:] >= ctx.map.segment_start)
         P.p_world[pts] = to_world(P.p_world[pts])
-        lns = np.flatnonzero(Lm.anchor[:] >= ctx.map.segment_start)
+        segment_lines = np.flatnonzero(Lm.anchor[:] >= ctx.map.segment_start)
+        lns = segment_lines[np.linalg.norm(Lm.v[segment_lines], axis=1) > 0]  # lines never triangulated (v = 0) stay as they are
         if len(lns):
             m_v, v_v = Lm.m[lns], Lm.v[lns]
             p0 = np.cross(v_v, m_v)  # the line's point nearest the visual origin (|v| = 1)
@@ -119,7 +120,7 @@ class VioStart:
             m, v = line_geo.from_points(a_w, b_w)
             norm = np.linalg.norm(v, axis=1, keepdims=True)
             Lm.m[lns], Lm.v[lns] = m / norm, v / norm
-        used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[lns]]))
+        used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[segment_lines]]))
         for q in used_planes[used_planes >= 0]:
             n_v, d_v = ctx.map.planes.n[q], ctx.map.planes.d[q]
             n_w = R_wv @ n_v
