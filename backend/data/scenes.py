@@ -358,13 +358,12 @@ def _slow_start() -> Scene:
 
 def _low_texture() -> Scene:
     """`room` with faint walls, floor and ceiling (`faint`: near-uniform paint, a few marks
-    14–22 grey levels off it) and only a door and a poster of its nine decals; the table,
-    the box, the ball and the bin keep their texture."""
+    14–22 grey levels off it) and only one of its nine decals, a door; the table, the box,
+    the ball and the bin keep their texture."""
     room = _room()
     surfaces = tuple(dataclasses.replace(r, texture=Texture("faint", 400 + k, 0.01)) for k, r in enumerate(room.rectangles[:6]))
-    decals = room.rectangles[6:15]
-    kept = (decals[2], decals[7])  # the door on the +x wall, the poster on the -y wall
-    return dataclasses.replace(room, name="low-texture", rectangles=(*surfaces, *kept, *room.rectangles[15:]))
+    door = room.rectangles[6 + 2]  # on the +x wall
+    return dataclasses.replace(room, name="low-texture", rectangles=(*surfaces, door, *room.rectangles[15:]))
 
 
 # auto-exposure: steps and ramps of the gain between 0.55 and 1.5, repeating every 16 s
