@@ -78,7 +78,9 @@ class Rig:
 
 EUROC_CAMERA = PinholeCamera(fx=458.0, fy=458.0, cx=367.0, cy=248.0, width=752, height=480, baseline=0.11)
 EUROC_RIG = Rig(camera=EUROC_CAMERA, T_body_cam0=body_camera((0.05, EUROC_CAMERA.baseline / 2.0, 0.0)), camera_rate_hz=20.0, imu_rate_hz=200.0)
-KITTI_CAMERA = PinholeCamera(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376, baseline=0.54)
+# KITTI odometry 00's left camera (f 718.856, cx 607.19, cy 185.22) to a quarter pixel, which
+# the readers' float32 rectification keeps exactly: a rendered folder reads back this camera
+KITTI_CAMERA = PinholeCamera(fx=718.75, fy=718.75, cx=607.25, cy=185.25, width=1241, height=376, baseline=0.54)
 KITTI_RIG = Rig(camera=KITTI_CAMERA, T_body_cam0=body_camera((0.81, 0.32, 0.80)), camera_rate_hz=10.0, imu_rate_hz=200.0)
 
 

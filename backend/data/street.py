@@ -160,7 +160,8 @@ def _cars(st: _Straight, *, rng: np.random.Generator, ids: _Ids) -> list[Rectang
 
 
 def _trees(st: _Straight, *, rng: np.random.Generator) -> tuple[list[Cylinder], list[Sphere]]:
-    """Trees (a trunk and a crown) along both sidewalks, 35–60 m apart."""
+    """Trees (a trunk and a crown) along both sidewalks, 50–80 m apart (ray-casting their
+    round shapes costs more than a façade)."""
     trunks, crowns = [], []
     for y in TREE_Y_M:
         x = 8.0 + float(rng.uniform(0.0, 15.0))
@@ -168,7 +169,7 @@ def _trees(st: _Straight, *, rng: np.random.Generator) -> tuple[list[Cylinder], 
             p = st.world(x, y)
             trunks.append(Cylinder(p[:2].copy(), 0.2, (0.0, 3.2), shade=float(rng.uniform(70, 110)), pattern_cells=6))
             crowns.append(Sphere(st.world(x, y, float(rng.uniform(4.3, 4.9))), float(rng.uniform(1.2, 1.6)), shade=float(rng.uniform(110, 170)), pattern_cells=14))
-            x += float(rng.uniform(35.0, 60.0))
+            x += float(rng.uniform(50.0, 80.0))
     return trunks, crowns
 
 
