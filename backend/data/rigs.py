@@ -65,11 +65,12 @@ class Rig:
         T = np.asarray(self.T_body_cam0, dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise ValueError("T_body_cam0: expected a 4x4 matrix of finite numbers")
-        R = T[:3, :3]
-        if np.max(np.abs(R.T @ R - np.eye(3))) > 1e-6 or np.linalg.det(R) < 0 or np.max(np.abs(T[3] - [0, 0, 0, 1])) > 0:
-            raise ValueError("T_body_cam0: expected a rigid transform (a rotation, a translation, last row 0 0 0 1)")
         if np.max(np.abs(T[:3, 3])) > MAX_LEVER_ARM_M:
             raise ValueError(f"T_body_cam0: the camera must be within {MAX_LEVER_ARM_M:g} m of the body")
+        R = T[:3, :3]
+        rigid = np.max(np.abs(R)) <= 1.0 + 1e-6 and np.max(np.abs(R.T @ R - np.eye(3))) <= 1e-6 and np.linalg.det(R) > 0 and np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0])
+        if not rigid:
+            raise ValueError("T_body_cam0: expected a rigid transform (a rotation, a translation, last row 0 0 0 1)")
         if not (math.isfinite(self.camera_rate_hz) and 0 < self.camera_rate_hz <= MAX_CAMERA_RATE_HZ):
             raise ValueError(f"camera_rate_hz: must be in (0, {MAX_CAMERA_RATE_HZ:g}]")
         if not (math.isfinite(self.imu_rate_hz) and 0 < self.imu_rate_hz <= MAX_IMU_RATE_HZ):
