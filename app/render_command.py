@@ -24,7 +24,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=path, help="output folder (created; must not hold the format's files already)")
     formats = ", ".join(f"{w.name}: {w.description}" for w in DATASET_WRITERS)
     p.add_argument("--format", default="euroc", choices=[w.name for w in DATASET_WRITERS], help=f"what to write ({formats}; default euroc)")
-    p.add_argument("--duration", type=bounded_float(low=0.0, high=MAX_DURATION_S, low_open=True, unit=" seconds"), default=30.0, help="seconds of motion (default 30; 20 Hz stereo, 200 Hz IMU)")
+    p.add_argument(
+        "--duration",
+        type=bounded_float(low=0.0, high=MAX_DURATION_S, low_open=True, unit=" seconds"),
+        default=30.0,
+        help="seconds of motion (default 30; at the scene rig's rates: 20 Hz stereo (street: 10 Hz), 200 Hz IMU)",
+    )
     p.add_argument("--seed", type=seed, default=0, help="seed of the trajectory and the noise (default 0)")
     p.add_argument("--image-noise", type=bounded_float(low=0.0, high=255.0, unit=" grey levels"), default=0.0, help="Gaussian image noise, grey levels (default 0)")
     p.add_argument("--blur", type=bounded_float(low=0.0, high=50.0, unit=" pixels"), default=0.0, help="Gaussian blur, pixels (default 0, at most 50)")

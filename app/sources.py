@@ -1,8 +1,10 @@
 """What `serve` and `run` run: their shared input options (`--scene`, `--dataset`, ...) and
 the engine built from them.
 
-- `--scene room|corridor|boxes|FILE.json` (default `room`): a rendered scene, frames rendered
-  on demand (`SyntheticSequence`), through the stereo pipeline (`StereoEngine`);
+- `--scene NAME|FILE.json` (default `room`): a rendered scene (the standard `room`,
+  `corridor`, `boxes`; the stress scenes `street`, `shake`, `slow-start`, `low-texture`,
+  `exposure`), frames rendered on demand (`SyntheticSequence`), through the stereo pipeline
+  (`StereoEngine`);
 - `--dataset DIR`: an EuRoC ASL folder through the stereo pipeline;
 - `--mode vio`: either of them through the monocular visual-inertial pipeline instead
   (`VioEngine`: the left images and `imu0`);
@@ -19,7 +21,7 @@ import math
 import pathlib
 from typing import TYPE_CHECKING, Any
 
-from backend.pipeline.factory import CAMERA_RATE_HZ, MC_SCENES, EngineConfig, make_engine
+from backend.pipeline.factory import MC_SCENES, EngineConfig, make_engine
 
 if TYPE_CHECKING:
     from backend.frontend.segmenters import SegmenterKind
@@ -75,8 +77,10 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
     source.add_argument("--dataset", default=None, metavar="PATH", type=name_or_path, help="a recorded dataset (its format recognized from its files: docs/usage.md) through the stereo pipeline")
     p.add_argument("--calib", default=None, metavar="PATH", type=name_or_path, help="with --dataset: calibration for an input without one (a ROS bag: sensor.yaml files or a Kalibr camchain.yaml)")
     p.add_argument("--topic", action="append", default=None, metavar="NAME=TOPIC", type=_topic, help="with --dataset (a ROS bag): read NAME (cam0, cam1, imu0, groundtruth) from TOPIC; repeatable")
-    p.add_argument("--duration", type=float, default=None, metavar="SECONDS", help=f"seconds of motion of a rendered scene (default {duration_default:g}; 20 frames per second)")
-    p.add_argument("--stride", type=int, default=None, metavar="N", help="rendered scenes: keep every N-th frame (20/N frames per second, N times the motion between frames; default 1)")
+    p.add_argument(
+        "--duration", type=float, default=None, metavar="SECONDS", help=f"seconds of motion of a rendered scene (default {duration_default:g}; at its rig's frame rate: 20 Hz, street 10 Hz)"
+    )
+    p.add_argument("--stride", type=int, default=None, metavar="N", help="rendered scenes: keep every N-th frame (the scene's rate / N, N times the motion between frames; default 1)")
     p.add_argument("--speed", type=float, default=None, metavar="F", help="rendered scenes: move along the same path F times faster (default 1)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the scene, its noise and the RANSACs (default 0)")
     p.add_argument("--mislabel", type=float, default=None, help="mc-a / mc-b only: fraction of features with a wrong plane-instance label (default 0.1)")
@@ -180,9 +184,9 @@ def engine_config(args: argparse.Namespace, *, headless: bool) -> EngineConfig:
         duration = args.duration_default if args.duration is None else args.duration
         if not (math.isfinite(duration) and 0.0 < duration <= MAX_DURATION_S):
             raise UsageError(f"--duration {duration:g}: must be more than 0 and at most {MAX_DURATION_S:g} seconds")
-        load_scene_argument(scene, other_names=tuple(MC_SCENES))  # UsageError for a bad name or file, before anything runs
+        scene_obj = load_scene_argument(scene, other_names=tuple(MC_SCENES))  # UsageError for a bad name or file, before anything runs
         try:
-            SequenceSettings(duration_s=duration, seed=args.seed, camera_rate_hz=CAMERA_RATE_HZ / stride, speed=speed)
+            SequenceSettings(duration_s=duration, seed=args.seed, camera_rate_hz=scene_obj.rig.camera_rate_hz / stride, speed=speed)
         except ValueError as e:
             raise UsageError(f"--duration {duration:g}: {e}") from None
         options.update(scene=scene, duration_s=duration, stride=stride, speed=speed)

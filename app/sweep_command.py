@@ -26,7 +26,11 @@ import sys
 from typing import Any
 
 AXIS_OPTIONS = {
-    "scenes": ("NAME,...", "rendered scenes: room, corridor, boxes or scene files (default: the three built-in scenes unless --datasets)"),
+    "scenes": (
+        "NAME,...",
+        "rendered scenes: room, corridor, boxes, the stress scenes street, shake, slow-start, low-texture, exposure, or scene files "
+        "(default: the three standard scenes room, corridor, boxes unless --datasets)",
+    ),
     "datasets": ("PATH,...", "recorded datasets (any format `coplanar run --dataset` reads)"),
     "variants": ("all|V,...", "parametrizations (default all)"),
     "modes": ("stereo,vio", "pipelines (default stereo)"),

@@ -1,9 +1,10 @@
 """Benchmark: stereo pairs of a synthetic scene rendered per second on one core.
 
-Renders `--pairs` rectified stereo pairs (752×480, EuRoC-like intrinsics, baseline 0.11 m)
-along a smooth random trajectory (`backend.data.motion.random_trajectory`, camera looking
-along the body's x axis), `--repeats` times, and prints the median throughput. BLAS, OpenMP
-and OpenCV are limited to one thread. Goal (issue 4): at least 10 pairs per second.
+Renders the first `--pairs` rectified stereo pairs of the scene's sequence (its rig: 752×480
+EuRoC-like intrinsics at 20 Hz for most scenes, `street`'s 1241×376 KITTI-like ones at 10 Hz;
+its motion: a smooth random trajectory, or `street`'s drive), `--repeats` times, and prints
+the median throughput. BLAS, OpenMP and OpenCV are limited to one thread. Goal (issue 4): at
+least 10 pairs per second.
 
     .venv/bin/python benchmarks/bench_render.py --scene room
 """
@@ -22,10 +23,8 @@ import time
 import cv2
 import numpy as np
 
-from backend.data import motion, render, scenes
-from backend.geometry.camera import PinholeCamera
-
-CAMERA = PinholeCamera(fx=458.0, fy=458.0, cx=367.0, cy=248.0, width=752, height=480, baseline=0.11)
+from backend.data import render, scenes
+from backend.data.synthetic import SequenceSettings, SyntheticSequence
 
 
 def main() -> None:
@@ -38,25 +37,18 @@ def main() -> None:
     cv2.setNumThreads(1)
 
     scene = scenes.builtin_scene(args.scene)
-    centre, half_extent = scene.camera_region
-    trajectory = motion.random_trajectory(
-        np.random.default_rng(args.seed),
-        centre=np.array([centre[0], centre[1], 0.0]),
-        half_extent=half_extent,
-        height=float(centre[2]),
-    )
-    times_s = np.arange(args.pairs) / 20.0  # 20 Hz
-    R_world_camera = trajectory.rotation(times_s) @ render.R_BODY_CAMERA_FORWARD
-    t_world_camera = trajectory.position(times_s)
+    seq = SyntheticSequence(scene, settings=SequenceSettings(duration_s=(args.pairs - 1) / scene.rig.camera_rate_hz, seed=args.seed))
+    camera, T_world_rect0 = seq.camera, seq.T_world_rect0[: args.pairs]
 
-    render.render_stereo(scene, CAMERA, R_world_camera[0], t_world_camera[0])  # textures, caches
+    for T in T_world_rect0:  # textures, caches
+        render.render_stereo(scene, camera, T[:3, :3], T[:3, 3])
     rates = []
     for _ in range(args.repeats):
         start = time.perf_counter()
-        for R, t in zip(R_world_camera, t_world_camera, strict=True):
-            render.render_stereo(scene, CAMERA, R, t)
+        for T in T_world_rect0:
+            render.render_stereo(scene, camera, T[:3, :3], T[:3, 3])
         rates.append(args.pairs / (time.perf_counter() - start))
-    print(f"scene {args.scene}: {args.pairs} stereo pairs of {CAMERA.width}x{CAMERA.height} per run, {args.repeats} runs, one thread")
+    print(f"scene {args.scene}: {args.pairs} stereo pairs of {camera.width}x{camera.height} per run, {args.repeats} runs, one thread")
     print(f"  pairs/s: median {np.median(rates):.1f} (min {min(rates):.1f}, max {max(rates):.1f}); goal >= 10")
     print(f"  {platform.processor() or platform.machine()}, python {platform.python_version()}, opencv {cv2.__version__}")
 

@@ -36,7 +36,7 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 from backend.data.motion import GRAVITY_WORLD, add_imu_noise
-from backend.data.scenes import SCENE_NAMES, builtin_scene
+from backend.data.scenes import STANDARD_SCENES, builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
 from backend.eval.vio import visual_keyframes
 from backend.vio.alignment import AlignmentSettings, align_visual_inertial
@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     settings = AlignmentSettings()
     start = time.perf_counter()
     runs, summary = [], {}
-    for scene in SCENE_NAMES:
+    for scene in STANDARD_SCENES:
         for speed in speeds:
             for duration in durations:
                 case = [run_one(scene, speed, duration, seed, settings) for seed in range(args.seeds)]

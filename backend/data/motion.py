@@ -1,8 +1,12 @@
 """Smooth body trajectories and IMU measurements consistent with them.
 
-A trajectory is `T_world_body(t)` (world z up, gravity -z, metres, seconds) with analytic
-position derivatives: positions and yaw/pitch/roll are sums of sinusoids, so speed and
-turn rate vary smoothly, like a hand-held or MAV camera.
+A trajectory (`Trajectory`) is `T_world_body(t)` (world z up, gravity -z, metres, seconds)
+with analytic position derivatives. `SmoothTrajectory`: positions and yaw/pitch/roll are
+sums of sinusoids, so speed and turn rate vary smoothly, like a hand-held or MAV camera.
+Two wrappers change any trajectory: `ShakenTrajectory` adds a hand-held shake (`Shake`: a
+few centimetre-and-degree sinusoids at 2–6 Hz), `WarpedTrajectory` runs its time slowly at
+first (`SlowStart`: a near-still creep, then the usual pace). A car's trajectory around a
+road loop is `backend.data.road.DriveTrajectory`.
 
 IMU samples follow the discrete model of preintegration (gtsam's): sample k, at time t_k,
 holds the gyro and accelerometer readings taken as constant over [t_k, t_{k+1}]. They are
@@ -22,12 +26,42 @@ per-sample standard deviations `σ·√rate`; biases follow a random walk with d
 from __future__ import annotations
 
 import dataclasses
+import math
+from typing import Protocol
 
 import numpy as np
 
 from backend.geometry import so3
 
 GRAVITY_WORLD = np.array([0.0, 0.0, -9.81])  # m/s², world z up
+
+
+class Trajectory(Protocol):
+    """`T_world_body(t)` and its derivatives at times t (N,) seconds."""
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        """`p_world_body` (N, 3), metres."""
+        ...
+
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        """World velocity (N, 3), m/s."""
+        ...
+
+    def acceleration(self, t: np.ndarray) -> np.ndarray:
+        """World acceleration (N, 3), m/s² (without gravity)."""
+        ...
+
+    def rotation(self, t: np.ndarray) -> np.ndarray:
+        """`R_world_body` (N, 3, 3)."""
+        ...
+
+
+def ypr_rotation(ypr: np.ndarray) -> np.ndarray:
+    """`R = Rz(yaw) Ry(pitch) Rx(roll)` (N, 3, 3) of angles (N, 3) in radians."""
+    z = np.array([0.0, 0.0, 1.0])
+    y = np.array([0.0, 1.0, 0.0])
+    x = np.array([1.0, 0.0, 0.0])
+    return so3.exp(ypr[:, :1] * z) @ so3.exp(ypr[:, 1:2] * y) @ so3.exp(ypr[:, 2:3] * x)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,11 +102,7 @@ class SmoothTrajectory:
 
     def rotation(self, t: np.ndarray) -> np.ndarray:
         """`R_world_body` (N, 3, 3)."""
-        ypr = self._channels(t)[:, 3:]
-        z = np.array([0.0, 0.0, 1.0])
-        y = np.array([0.0, 1.0, 0.0])
-        x = np.array([1.0, 0.0, 0.0])
-        return so3.exp(ypr[:, :1] * z) @ so3.exp(ypr[:, 1:2] * y) @ so3.exp(ypr[:, 2:3] * x)
+        return ypr_rotation(self._channels(t)[:, 3:])
 
 
 def random_trajectory(
@@ -98,6 +128,119 @@ def random_trajectory(
     phase = rng.uniform(0.0, 2.0 * np.pi, (6, harmonics))
     offset = np.concatenate([centre + np.array([0.0, 0.0, height]), rng.uniform(-np.pi, np.pi, 1), [0.0, 0.0]])
     return SmoothTrajectory(offset=offset, amplitude=amplitude, frequency_hz=frequency, phase=phase)
+
+
+MAX_SHAKE_M = 1.0
+MAX_SHAKE_DEG = 30.0
+MAX_SHAKE_HZ = 50.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Shake:
+    """A hand-held shake: each position axis moves within ±`amplitude_m` metres and each
+    angle (yaw, pitch, roll) within ±`amplitude_deg` degrees, as sums of three sinusoids at
+    random frequencies in `band_hz` (Hz), the faster ones smaller."""
+
+    amplitude_m: float = 0.008
+    amplitude_deg: float = 1.5
+    band_hz: tuple[float, float] = (2.0, 6.0)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.amplitude_m) and 0 <= self.amplitude_m <= MAX_SHAKE_M):
+            raise ValueError(f"amplitude_m: must be in [0, {MAX_SHAKE_M:g}] metres")
+        if not (math.isfinite(self.amplitude_deg) and 0 <= self.amplitude_deg <= MAX_SHAKE_DEG):
+            raise ValueError(f"amplitude_deg: must be in [0, {MAX_SHAKE_DEG:g}] degrees")
+        low, high = self.band_hz
+        if not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high <= MAX_SHAKE_HZ):
+            raise ValueError(f"band_hz: expected [low, high] with 0 < low <= high <= {MAX_SHAKE_HZ:g} Hz")
+
+    def trajectory(self, rng: np.random.Generator, *, harmonics: int = 3) -> SmoothTrajectory:
+        """The shake alone: a `SmoothTrajectory` about zero (position and angles), drawn from `rng`."""
+        low, high = self.band_hz
+        frequency = rng.uniform(low, high, (6, harmonics))
+        weights = rng.uniform(0.5, 1.0, (6, harmonics)) * low / frequency
+        weights /= weights.sum(axis=1, keepdims=True)
+        scale = np.array([self.amplitude_m] * 3 + [np.deg2rad(self.amplitude_deg)] * 3)
+        phase = rng.uniform(0.0, 2.0 * np.pi, (6, harmonics))
+        return SmoothTrajectory(offset=np.zeros(6), amplitude=weights * scale[:, None], frequency_hz=frequency, phase=phase)
+
+
+@dataclasses.dataclass(frozen=True)
+class ShakenTrajectory:
+    """`base` with `shake` (a `SmoothTrajectory` about zero) added: its positions in the world
+    frame, its angles as a rotation in the body frame (`R = R_base R_shake`)."""
+
+    base: Trajectory
+    shake: SmoothTrajectory
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        return self.base.position(t) + self.shake.position(t)
+
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        return self.base.velocity(t) + self.shake.velocity(t)
+
+    def acceleration(self, t: np.ndarray) -> np.ndarray:
+        return self.base.acceleration(t) + self.shake.acceleration(t)
+
+    def rotation(self, t: np.ndarray) -> np.ndarray:
+        return self.base.rotation(t) @ self.shake.rotation(t)
+
+
+MAX_SLOW_START_S = 3600.0
+
+
+@dataclasses.dataclass(frozen=True)
+class SlowStart:
+    """A start that waits: for the first `still_s` seconds the path's own time runs at
+    `creep` times the usual pace (a creep of millimetres per second where the path moves
+    decimetres per second), then the pace rises to the usual one over `ramp_s` seconds along
+    a quintic step, so that velocity and acceleration stay continuous."""
+
+    still_s: float = 3.0
+    ramp_s: float = 2.0
+    creep: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.still_s) and 0 <= self.still_s <= MAX_SLOW_START_S):
+            raise ValueError(f"still_s: must be in [0, {MAX_SLOW_START_S:g}] seconds")
+        if not (math.isfinite(self.ramp_s) and 0 < self.ramp_s <= MAX_SLOW_START_S):
+            raise ValueError(f"ramp_s: must be in (0, {MAX_SLOW_START_S:g}] seconds")
+        if not (math.isfinite(self.creep) and 0 <= self.creep <= 1):
+            raise ValueError("creep: must be a fraction in [0, 1]")
+
+    def warp(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The path's time `τ(t)` at times t (N,) seconds, its rate `dτ/dt` and `d²τ/dt²`."""
+        t = np.asarray(t, dtype=float)
+        x = np.clip((t - self.still_s) / self.ramp_s, 0.0, 1.0)
+        rise = 1.0 - self.creep
+        step = x**3 * (10.0 - 15.0 * x + 6.0 * x**2)  # 0 -> 1, flat at both ends
+        step_integral = x**4 * (2.5 - 3.0 * x + x**2)  # ∫₀ˣ step, 1/2 at x = 1
+        tau = self.creep * t + rise * (self.ramp_s * step_integral + np.maximum(t - self.still_s - self.ramp_s, 0.0))
+        rate = self.creep + rise * step
+        rate_dot = rise * 30.0 * x**2 * (1.0 - x) ** 2 / self.ramp_s
+        return tau, rate, rate_dot
+
+
+@dataclasses.dataclass(frozen=True)
+class WarpedTrajectory:
+    """`base` along its own path, its time warped by `slow_start`: the pose at t is base's at τ(t)."""
+
+    base: Trajectory
+    slow_start: SlowStart
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        return self.base.position(self.slow_start.warp(t)[0])
+
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        tau, rate, _ = self.slow_start.warp(t)
+        return self.base.velocity(tau) * rate[:, None]
+
+    def acceleration(self, t: np.ndarray) -> np.ndarray:
+        tau, rate, rate_dot = self.slow_start.warp(t)
+        return self.base.acceleration(tau) * (rate**2)[:, None] + self.base.velocity(tau) * rate_dot[:, None]
+
+    def rotation(self, t: np.ndarray) -> np.ndarray:
+        return self.base.rotation(self.slow_start.warp(t)[0])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,7 +273,7 @@ class ImuNoise:
     accelerometer_random_walk: float = 3.0000e-3  # m / s³ / √Hz
 
 
-def imu_samples(trajectory: SmoothTrajectory, *, start_ns: int, end_ns: int, rate_hz: float = 200.0) -> ImuData:
+def imu_samples(trajectory: Trajectory, *, start_ns: int, end_ns: int, rate_hz: float = 200.0) -> ImuData:
     """Noise-free IMU samples at `rate_hz` from `start_ns` up to `end_ns` (the last sample's
     interval ends at or before `end_ns`), consistent with the discrete preintegration model
     (module docstring)."""

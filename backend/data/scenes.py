@@ -1,5 +1,6 @@
-"""Synthetic indoor scenes: textured planar rectangles plus non-planar spheres and vertical
-cylinders, in the world frame (metres, z up).
+"""Synthetic scenes: textured planar rectangles plus non-planar spheres and vertical
+cylinders, in the world frame (metres, z up), with the rig that sees them, how its body
+moves and the camera's exposure.
 
 A rectangle is `X(a, b) = p0 + a u + b v` for `a ∈ [0, w]`, `b ∈ [0, h]` (u, v unit and
 orthogonal); its texture's column index runs along u and its row index along v. Its plane
@@ -7,8 +8,17 @@ is `n = u × v`, `d = -n·p0` (DESIGN §2: `n·X + d = 0`). Every rectangle carr
 (≥ 0); coplanar rectangles may share one (a poster on a wall shares the wall's id and, drawn
 after it, covers it). Spheres and cylinders have no plane (id -1 in the renderer's masks).
 
-Built-in scenes: `room` (default), `corridor`, `boxes` (`builtin_scene`). User scenes are
-JSON files (`load_scene`, `scene_to_json`); see `scene_to_dict` for the layout.
+A scene also carries its `rig` (camera, baseline, rates: `backend.data.rigs`; EuRoC-like by
+default), its `motion` (`backend.data.body_motion`: a random path in `camera_region` by
+default, or a drive around a road loop; optionally shaken or slow to start) and an
+`exposure` schedule (`backend.data.exposure`; none by default).
+
+Built-in scenes (`builtin_scene`): the standard indoor ones `room` (default), `corridor`,
+`boxes`, and the stress scenes that test robustness on what real data brings (`STRESS_SCENES`):
+`street` (a KITTI-like drive around a city block, `backend.data.street`), and `room` made
+harder: `shake` (hand-held shake), `slow-start` (3 s nearly still), `low-texture` (faint
+walls) and `exposure` (auto-exposure steps and ramps). User scenes are JSON files
+(`load_scene`, `scene_to_json`); see `scene_to_dict` for the layout.
 """
 
 from __future__ import annotations
@@ -23,9 +33,16 @@ from typing import Any
 
 import numpy as np
 
+from backend.data.body_motion import Motion, motion_from_dict, motion_to_dict
+from backend.data.exposure import ExposureSchedule, GainChange, exposure_from_dict, exposure_to_dict
+from backend.data.json_fields import integer, number, objects, vector
+from backend.data.motion import Shake, SlowStart
+from backend.data.rigs import EUROC_RIG, Rig, rig_from_dict, rig_to_dict
 from backend.data.textures import DEFAULT_TEXEL_M, KINDS, texture_shape
 
-SCENE_NAMES = ("room", "corridor", "boxes")
+STANDARD_SCENES = ("room", "corridor", "boxes")  # what a sweep runs by default
+STRESS_SCENES = ("street", "shake", "slow-start", "low-texture", "exposure")
+SCENE_NAMES = (*STANDARD_SCENES, *STRESS_SCENES)
 DEFAULT_SCENE = "room"
 _MAX_PLANE_ID = 32766  # plane masks are int16
 MAX_COORDINATE_M = 1e5  # scene coordinates (m): beyond, float32 rendering loses the centimetre
@@ -114,13 +131,18 @@ class Cylinder:
 class Scene:
     """Rectangles (drawn in order: later ones win ties, so decals follow their wall),
     spheres and cylinders; `camera_region` is (centre (3,), half_extent (3,)) metres, a box
-    of free space where cameras may move (None when unknown)."""
+    of free space where cameras may move (None when unknown), where a random path moves.
+    `rig`: the cameras and rates that see it; `motion`: how the body moves; `exposure`: a
+    gain schedule of the images (None: constant)."""
 
     name: str
     rectangles: tuple[Rectangle, ...]
     spheres: tuple[Sphere, ...] = ()
     cylinders: tuple[Cylinder, ...] = ()
     camera_region: tuple[np.ndarray, np.ndarray] | None = None
+    rig: Rig = EUROC_RIG
+    motion: Motion = Motion()
+    exposure: ExposureSchedule | None = None
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -317,7 +339,62 @@ def _boxes() -> Scene:
     )
 
 
-_BUILDERS = {"room": _room, "corridor": _corridor, "boxes": _boxes}
+def _street() -> Scene:
+    from backend.data.street import street_scene  # it builds on this module
+
+    return street_scene()
+
+
+def _shake() -> Scene:
+    """`room` carried by hand: its path plus a shake of up to 8 mm and 1.5° at 2–6 Hz."""
+    return dataclasses.replace(_room(), name="shake", motion=Motion(shake=Shake(amplitude_m=0.008, amplitude_deg=1.5, band_hz=(2.0, 6.0))))
+
+
+def _slow_start() -> Scene:
+    """`room` whose first 3 s creep at a hundredth of the usual pace (millimetres per
+    second), rising to it over the next 2 s."""
+    return dataclasses.replace(_room(), name="slow-start", motion=Motion(slow_start=SlowStart(still_s=3.0, ramp_s=2.0, creep=0.01)))
+
+
+def _low_texture() -> Scene:
+    """`room` with faint walls, floor and ceiling (`faint`: near-uniform paint, a few marks
+    14–22 grey levels off it) and only one of its nine decals, a door; the table, the box,
+    the ball and the bin keep their texture."""
+    room = _room()
+    surfaces = tuple(dataclasses.replace(r, texture=Texture("faint", 400 + k, 0.01)) for k, r in enumerate(room.rectangles[:6]))
+    door = room.rectangles[6 + 2]  # on the +x wall
+    return dataclasses.replace(room, name="low-texture", rectangles=(*surfaces, door, *room.rectangles[15:]))
+
+
+# auto-exposure: steps and ramps of the gain between 0.55 and 1.5, repeating every 16 s
+AUTO_EXPOSURE = ExposureSchedule(
+    period_s=16.0,
+    changes=(
+        GainChange(at_s=1.5, gain=1.45),
+        GainChange(at_s=3.5, gain=0.6, ramp_s=1.0),
+        GainChange(at_s=6.0, gain=1.0),
+        GainChange(at_s=8.0, gain=1.5, ramp_s=2.0),
+        GainChange(at_s=11.0, gain=0.55),
+        GainChange(at_s=13.0, gain=1.0, ramp_s=1.5),
+    ),
+)
+
+
+def _exposure() -> Scene:
+    """`room` under auto-exposure: `AUTO_EXPOSURE`'s gain steps and ramps of ±40–50 %."""
+    return dataclasses.replace(_room(), name="exposure", exposure=AUTO_EXPOSURE)
+
+
+_BUILDERS = {
+    "room": _room,
+    "corridor": _corridor,
+    "boxes": _boxes,
+    "street": _street,
+    "shake": _shake,
+    "slow-start": _slow_start,
+    "low-texture": _low_texture,
+    "exposure": _exposure,
+}
 
 
 def builtin_scene(name: str = DEFAULT_SCENE) -> Scene:
@@ -338,9 +415,16 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
                      "texture": {"kind": str, "seed": int, "texel_m": float}}, ...],
      "spheres": [{"centre": [x, y, z], "radius": r, "shade": 0..255, "pattern_cells": int}],
      "cylinders": [{"centre_xy": [x, y], "radius": r, "z_range": [z0, z1], "shade": .., "pattern_cells": ..}],
-     "camera_region": {"centre": [..], "half_extent": [..]} or null}
-    World frame, metres. `spheres`, `cylinders`, `camera_region` and a texture's `texel_m`
-    may be left out."""
+     "camera_region": {"centre": [..], "half_extent": [..]} or null,
+     "rig": {"camera": {"fx", "fy", "cx", "cy", "width", "height", "baseline"}, "T_body_cam0": 4x4,
+             "camera_rate_hz", "imu_rate_hz"},                                   (rigs.rig_to_dict)
+     "motion": {"road": null | {...}, "shake": null | {...}, "slow_start": null | {...}},
+                                                                           (body_motion.motion_to_dict)
+     "exposure": null | {"period_s", "changes": [{"at_s", "gain", "ramp_s"}, ...]}}
+                                                                           (exposure.exposure_to_dict)
+    World frame, metres, pixels, seconds. `spheres`, `cylinders`, `camera_region`, a
+    texture's `texel_m`, `rig` (the EuRoC-like rig), `motion` (a random path in the camera
+    region) and `exposure` (none) may be left out."""
     return {
         "name": scene.name,
         "rectangles": [
@@ -357,6 +441,9 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
         "spheres": [{"centre": s.centre.tolist(), "radius": s.radius, "shade": s.shade, "pattern_cells": s.pattern_cells} for s in scene.spheres],
         "cylinders": [{"centre_xy": c.centre_xy.tolist(), "radius": c.radius, "z_range": list(c.z_range), "shade": c.shade, "pattern_cells": c.pattern_cells} for c in scene.cylinders],
         "camera_region": None if scene.camera_region is None else {"centre": scene.camera_region[0].tolist(), "half_extent": scene.camera_region[1].tolist()},
+        "rig": rig_to_dict(scene.rig),
+        "motion": motion_to_dict(scene.motion),
+        "exposure": None if scene.exposure is None else exposure_to_dict(scene.exposure),
     }
 
 
@@ -365,96 +452,59 @@ def scene_to_json(scene: Scene) -> str:
     return json.dumps(scene_to_dict(scene), indent=1)
 
 
-def _vector(obj: dict[str, Any], key: str, n: int, where: str) -> np.ndarray:
-    if key not in obj:
-        raise ValueError(f"{where}: missing {key!r}")
-    value = obj[key]
-    if not (isinstance(value, list) and len(value) == n and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)):
-        raise ValueError(f"{where}.{key}: expected {n} numbers")
-    return np.array(value, dtype=float)
-
-
-def _number(obj: dict[str, Any], key: str, where: str, default: float | None = None) -> float:
-    if key not in obj:
-        if default is None:
-            raise ValueError(f"{where}: missing {key!r}")
-        return default
-    value = obj[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{where}.{key}: expected a number")
-    return float(value)
-
-
-def _integer(obj: dict[str, Any], key: str, where: str, default: int | None = None) -> int:
-    if key not in obj:
-        if default is None:
-            raise ValueError(f"{where}: missing {key!r}")
-        return default
-    value = obj[key]
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{where}.{key}: expected an integer")
-    return value
-
-
-def _objects(data: dict[str, Any], key: str) -> list[dict[str, Any]]:
-    items = data.get(key, [])
-    if not isinstance(items, list) or not all(isinstance(x, dict) for x in items):
-        raise ValueError(f"{key}: expected a list of objects")
-    return items
-
-
 def scene_from_dict(data: Any) -> Scene:
     """A scene from its JSON-able form (`scene_to_dict`); ValueError with a short reason
     (naming the entry, e.g. `rectangles[2].u: expected 3 numbers`) when malformed."""
     if not isinstance(data, dict):
         raise ValueError("expected a JSON object at the top level")
     rects = []
-    for i, r in enumerate(_objects(data, "rectangles")):
+    for i, r in enumerate(objects(data, "rectangles")):
         where = f"rectangles[{i}]"
-        size = _vector(r, "size", 2, where)
+        size = vector(r, "size", 2, where)
         tex = r.get("texture")
         if not isinstance(tex, dict):
             raise ValueError(f"{where}.texture: expected an object with kind and seed")
         kind = tex.get("kind")
         if not isinstance(kind, str):
             raise ValueError(f"{where}.texture.kind: expected a string")
-        seed = _integer(tex, "seed", f"{where}.texture")
+        seed = integer(tex, "seed", f"{where}.texture")
         if seed < 0:
             raise ValueError(f"{where}.texture.seed: must be >= 0")
-        texture = Texture(kind, seed, _number(tex, "texel_m", f"{where}.texture", DEFAULT_TEXEL_M))
+        texture = Texture(kind, seed, number(tex, "texel_m", f"{where}.texture", DEFAULT_TEXEL_M))
         rects.append(
             Rectangle(
-                p0=_vector(r, "p0", 3, where),
-                u=_vector(r, "u", 3, where),
-                v=_vector(r, "v", 3, where),
+                p0=vector(r, "p0", 3, where),
+                u=vector(r, "u", 3, where),
+                v=vector(r, "v", 3, where),
                 size=(float(size[0]), float(size[1])),
                 texture=texture,
-                plane_id=_integer(r, "plane_id", where),
+                plane_id=integer(r, "plane_id", where),
             )
         )
     if not rects:
         raise ValueError("rectangles: expected at least one rectangle")
     spheres = []
-    for i, s in enumerate(_objects(data, "spheres")):
+    for i, s in enumerate(objects(data, "spheres")):
         where = f"spheres[{i}]"
-        spheres.append(Sphere(_vector(s, "centre", 3, where), _number(s, "radius", where), _number(s, "shade", where, 170.0), _integer(s, "pattern_cells", where, 8)))
+        spheres.append(Sphere(vector(s, "centre", 3, where), number(s, "radius", where), number(s, "shade", where, 170.0), integer(s, "pattern_cells", where, 8)))
     cylinders = []
-    for i, c in enumerate(_objects(data, "cylinders")):
+    for i, c in enumerate(objects(data, "cylinders")):
         where = f"cylinders[{i}]"
-        z = _vector(c, "z_range", 2, where)
-        cylinders.append(
-            Cylinder(_vector(c, "centre_xy", 2, where), _number(c, "radius", where), (float(z[0]), float(z[1])), _number(c, "shade", where, 150.0), _integer(c, "pattern_cells", where, 12))
-        )
+        z = vector(c, "z_range", 2, where)
+        cylinders.append(Cylinder(vector(c, "centre_xy", 2, where), number(c, "radius", where), (float(z[0]), float(z[1])), number(c, "shade", where, 150.0), integer(c, "pattern_cells", where, 12)))
     region = data.get("camera_region")
     camera_region = None
     if region is not None:
         if not isinstance(region, dict):
             raise ValueError("camera_region: expected an object with centre and half_extent")
-        camera_region = (_vector(region, "centre", 3, "camera_region"), _vector(region, "half_extent", 3, "camera_region"))
+        camera_region = (vector(region, "centre", 3, "camera_region"), vector(region, "half_extent", 3, "camera_region"))
     name = data.get("name", "scene")
     if not isinstance(name, str):
         raise ValueError("name: expected a string")
-    return Scene(name=name, rectangles=tuple(rects), spheres=tuple(spheres), cylinders=tuple(cylinders), camera_region=camera_region)
+    rig = EUROC_RIG if data.get("rig") is None else rig_from_dict(data["rig"])
+    motion = Motion() if data.get("motion") is None else motion_from_dict(data["motion"])
+    exposure = None if data.get("exposure") is None else exposure_from_dict(data["exposure"])
+    return Scene(name=name, rectangles=tuple(rects), spheres=tuple(spheres), cylinders=tuple(cylinders), camera_region=camera_region, rig=rig, motion=motion, exposure=exposure)
 
 
 def load_scene(path: str | os.PathLike[str]) -> Scene:

@@ -1,13 +1,17 @@
 """Synthetic stereo + IMU sequences of a scene, written as EuRoC ASL folders.
 
-The body (IMU) frame moves along a smooth random trajectory inside the scene's camera
-region; the left camera looks along the body's x axis (`R_BODY_CAMERA_FORWARD`), 5 cm ahead
-of the IMU, the right one `baseline` metres along the left camera's x. Stereo pairs at 20 Hz
-(752×480, EuRoC-like intrinsics, square pixels, already rectified), IMU at 200 Hz consistent
-with the trajectory (`backend.data.motion`), then IMU noise and bias random walk at EuRoC's
-`imu0/sensor.yaml` values. Ground truth: the body state at every IMU sample and at the last
-frame (past the last IMU sample: every frame has a ground-truth row at its own time), and per frame
-the depth and plane-instance masks of both cameras, with the plane table.
+The scene says how it is seen and how the body moves (`Scene.rig`, `Scene.motion`,
+`Scene.exposure`): by default (`backend.data.rigs.EUROC_RIG`) stereo pairs at 20 Hz
+(752×480, EuRoC-like intrinsics, square pixels, already rectified), the left camera looking
+along the body's x axis (`R_BODY_CAMERA_FORWARD`) 5 cm ahead of the IMU, the right one
+`baseline` metres along the left camera's x, and the body moving along a smooth random
+trajectory inside the scene's camera region; `street` has a KITTI-like rig at 10 Hz and
+drives a car around a road loop (`backend.data.body_motion`). The IMU (200 Hz) is
+consistent with the trajectory (`backend.data.motion`), then gets noise and a bias random
+walk at EuRoC's `imu0/sensor.yaml` values. Ground truth: the body state at every IMU sample
+and at the last frame (past the last IMU sample: every frame has a ground-truth row at its
+own time), and per frame the depth and plane-instance masks of both cameras, with the plane
+table.
 """
 
 from __future__ import annotations
@@ -19,36 +23,34 @@ from collections.abc import Callable
 
 import numpy as np
 
+from backend.data.body_motion import BASE_FREQUENCY_HZ as BASE_FREQUENCY_HZ
+from backend.data.body_motion import body_trajectory
 from backend.data.euroc_writer import EurocWriter, GroundTruthRows
-from backend.data.motion import ImuData, ImuNoise, add_imu_noise, imu_samples, random_trajectory
-from backend.data.render import R_BODY_CAMERA_FORWARD, View, render_stereo, render_view
+from backend.data.motion import ImuData, ImuNoise, add_imu_noise, imu_samples
+from backend.data.render import View, render_stereo, render_view
+from backend.data.rigs import EUROC_RIG
 from backend.data.scenes import Scene
-from backend.geometry.camera import PinholeCamera
 
-CAMERA = PinholeCamera(fx=458.0, fy=458.0, cx=367.0, cy=248.0, width=752, height=480, baseline=0.11)
-T_BODY_CAM0 = np.eye(4)
-T_BODY_CAM0[:3, :3] = R_BODY_CAMERA_FORWARD
-T_BODY_CAM0[:3, 3] = [0.05, CAMERA.baseline / 2.0, 0.0]  # the stereo pair is centred on the IMU
-
-
-# The rendered trajectories' lowest motion frequency at speed 1 (motion.random_trajectory's default).
-BASE_FREQUENCY_HZ = 0.04
+# The default rig's camera and `T_body_cam0` (the stereo pair centred on the IMU, 5 cm ahead).
+CAMERA = EUROC_RIG.camera
+T_BODY_CAM0 = EUROC_RIG.T_body_cam0
 
 
 @dataclasses.dataclass(frozen=True)
 class SequenceSettings:
-    """What to render: `duration_s` seconds at `camera_rate_hz` / `imu_rate_hz`; the
-    trajectory, IMU noise and image effects are drawn from `seed`; `speed` traverses the same
-    path that many times faster (every channel's frequencies scaled). Image effects: Gaussian
-    noise of `image_noise` grey levels, blur of `blur_px` pixels, and an exposure gain
-    varying by ±`exposure` (relative) with a 7 s period. The IMU biases start at
+    """What to render: `duration_s` seconds at `camera_rate_hz` / `imu_rate_hz` (None: the
+    scene rig's rates); the trajectory, IMU noise and image effects are drawn from `seed`;
+    `speed` traverses the same path that many times faster (every channel's frequencies
+    scaled, a road's speeds multiplied). Image effects, on top of the scene's own exposure
+    schedule: Gaussian noise of `image_noise` grey levels, blur of `blur_px` pixels, and an
+    exposure gain varying by ±`exposure` (relative) with a 7 s period. The IMU biases start at
     `imu_bias_gyro` (rad/s) and `imu_bias_accel` (m/s²), by default about those of the real
     EuRoC V1_01 sensor (its ground truth's estimate at the start), and then random-walk at
     `imu_noise`'s densities."""
 
     duration_s: float = 30.0
-    camera_rate_hz: float = 20.0
-    imu_rate_hz: float = 200.0
+    camera_rate_hz: float | None = None
+    imu_rate_hz: float | None = None
     seed: int = 0
     imu_noise: ImuNoise = ImuNoise()
     image_noise: float = 0.0
@@ -63,6 +65,10 @@ class SequenceSettings:
             raise ValueError("duration must be positive")
         if not (np.isfinite(self.speed) and self.speed > 0):
             raise ValueError("speed must be positive")
+        for name in ("camera_rate_hz", "imu_rate_hz"):
+            rate = getattr(self, name)
+            if rate is not None and not (np.isfinite(rate) and rate > 0):
+                raise ValueError(f"{name.removesuffix('_hz').replace('_', ' ')} must be positive")
         if self.image_noise < 0 or self.blur_px < 0 or not 0 <= self.exposure < 1:
             raise ValueError("image noise and blur must be >= 0, exposure in [0, 1)")
 
@@ -71,10 +77,12 @@ class SyntheticSequence:
     """A rendered scene read like an EuRoC folder, frames rendered on demand.
 
     Same reading interface as :class:`backend.data.euroc.EurocDataset`: `timestamps_ns`,
-    `camera` (rectified left camera with the baseline), `imu` / `imu_between`,
+    `camera` (rectified left camera with the baseline; the scene rig's), `imu` / `imu_between`,
     `T_world_body`, `T_world_rect0` (N, 4, 4), `ground_truth_valid`, `rectified_pair(i)`;
     plus the ground-truth extras `views(i)` (left and right :class:`View`: image, depth,
-    plane ids) and `plane_table` (id -> (n, d)). Rendering a pair (about 45 per second) is
+    plane ids), `plane_table` (id -> (n, d)), `trajectory` (the body's, `T_world_body(t)`)
+    and the rates in use, `camera_rate_hz` and `imu_rate_hz` (the settings', else the rig's).
+    Rendering a pair (about 45 per second for the default rig) is
     faster than reading its PNGs back, so frames are not written anywhere: the last
     `cache_frames` pairs are kept in memory, and each frame's image noise has its own seed,
     so any frame renders the same whenever it is asked for. The ground truth is the body's
@@ -87,14 +95,15 @@ class SyntheticSequence:
     def __init__(self, scene: Scene, *, settings: SequenceSettings = SequenceSettings(), cache_frames: int = 64) -> None:
         self.scene = scene
         self.settings = settings
-        self.camera = CAMERA
-        self.T_body_cam0 = T_BODY_CAM0
+        self.camera = scene.rig.camera
+        self.T_body_cam0 = scene.rig.T_body_cam0
+        self.camera_rate_hz = scene.rig.camera_rate_hz if settings.camera_rate_hz is None else settings.camera_rate_hz
+        self.imu_rate_hz = scene.rig.imu_rate_hz if settings.imu_rate_hz is None else settings.imu_rate_hz
         rng = np.random.default_rng([settings.seed, 0xDA7A])
-        centre, half = scene.camera_region if scene.camera_region is not None else (np.array([0.0, 0.0, 1.4]), np.array([1.0, 1.0, 0.2]))
-        self.trajectory = random_trajectory(rng, centre=np.asarray(centre, float), half_extent=np.asarray(half, float), height=0.0, base_frequency_hz=BASE_FREQUENCY_HZ * settings.speed)
-        period_ns = int(round(1e9 / settings.camera_rate_hz))
+        self.trajectory = body_trajectory(scene.motion, rng=rng, seed=settings.seed, region=scene.camera_region, speed=settings.speed)
+        period_ns = int(round(1e9 / self.camera_rate_hz))
         self.timestamps_ns = np.arange(0, int(settings.duration_s * 1e9) + 1, period_ns, dtype=np.int64)
-        self.imu_true = imu_samples(self.trajectory, start_ns=0, end_ns=int(self.timestamps_ns[-1]), rate_hz=settings.imu_rate_hz)
+        self.imu_true = imu_samples(self.trajectory, start_ns=0, end_ns=int(self.timestamps_ns[-1]), rate_hz=self.imu_rate_hz)
         self.imu, self.bias_gyro, self.bias_accel = add_imu_noise(
             self.imu_true, rng, noise=settings.imu_noise, bias_gyro=np.array(settings.imu_bias_gyro), bias_accel=np.array(settings.imu_bias_accel)
         )
@@ -103,8 +112,8 @@ class SyntheticSequence:
         T[:, :3, :3] = self.trajectory.rotation(t)
         T[:, :3, 3] = self.trajectory.position(t)
         self.T_world_body = T
-        self.T_world_rect0 = T @ T_BODY_CAM0  # the cameras are rectified already
-        self.T_truth_rect0 = np.asarray(T_BODY_CAM0, dtype=float)  # (4, 4) the left camera in the body frame
+        self.T_world_rect0 = T @ self.T_body_cam0  # the cameras are rectified already
+        self.T_truth_rect0 = np.asarray(self.T_body_cam0, dtype=float)  # (4, 4) the left camera in the body frame
         self.ground_truth_valid = np.ones(len(t), bool)
         self.plane_table = scene.planes
         self._cache: collections.OrderedDict[int, tuple[View, View]] = collections.OrderedDict()
@@ -145,6 +154,8 @@ class SyntheticSequence:
         s = self.settings
         T = self.T_world_rect0[index]
         gain = 1.0 + s.exposure * np.sin(2.0 * np.pi * self.timestamps_ns[index] * 1e-9 / 7.0)
+        if self.scene.exposure is not None:
+            gain *= self.scene.exposure.gain(float(self.timestamps_ns[index]) * 1e-9)
         rng = np.random.default_rng([s.seed, 0x1A6E, index])
         pair = render_stereo(self.scene, self.camera, T[:3, :3], T[:3, 3], gain=gain, blur_sigma_px=s.blur_px, noise_sigma=s.image_noise, rng=rng)
         self._cache[index] = pair
@@ -177,7 +188,7 @@ def render_sequence(scene: Scene, out: pathlib.Path | str, *, settings: Sequence
     """Render `scene` into the EuRoC folder `out`; returns the number of stereo frames.
     `on_frame(done, total)` reports progress."""
     seq = SyntheticSequence(scene, settings=settings, cache_frames=1)
-    writer = EurocWriter(out, camera=CAMERA, T_body_cam0=T_BODY_CAM0, imu_noise=settings.imu_noise, camera_rate_hz=settings.camera_rate_hz, imu_rate_hz=settings.imu_rate_hz)
+    writer = EurocWriter(out, camera=seq.camera, T_body_cam0=np.asarray(seq.T_body_cam0), imu_noise=settings.imu_noise, camera_rate_hz=seq.camera_rate_hz, imu_rate_hz=seq.imu_rate_hz)
     writer.write_imu(seq.imu.timestamp_ns, seq.imu.gyro, seq.imu.accel)
     writer.write_ground_truth(_ground_truth_rows(seq))
     ids = sorted(seq.plane_table)

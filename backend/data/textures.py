@@ -2,7 +2,11 @@
 
 Every texture has corners and straight edges at centimetre scales, so that ORB finds
 corners and LSD finds segments on it: tiles with grout lines, posters of rectangles, bars
-and text-like blocks, wood-like panels with seams, and a noisy checker for floors.
+and text-like blocks, wood-like panels with seams, and a noisy checker for floors. The
+`street` scene adds building fronts with rows of windows (`facade`), a road cross-section
+with sidewalks and lane markings (`road`) and plain patched asphalt (`asphalt`), all meant
+for texels of a few centimetres; `low-texture` adds `faint`: a near-uniform paint with a
+few low-contrast marks, just above the ORB detector's threshold.
 
 A texture is a pure function of `(kind, seed, height_px, width_px)`; `texture_image`
 caches the results. Texture size follows the surface: `texture_shape` gives about
@@ -18,7 +22,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-KINDS = ("tiles", "poster", "panels", "checker", "door", "plaster")
+KINDS = ("tiles", "poster", "panels", "checker", "door", "plaster", "facade", "road", "asphalt", "faint")
 MAX_TEXTURE_PX = 2048
 DEFAULT_TEXEL_M = 0.005
 
@@ -164,6 +168,133 @@ def plaster(rng: np.random.Generator, shape: tuple[int, int], *, block_px: tuple
     return _finish(img, rng, grain=5.0)
 
 
+def facade(rng: np.random.Generator, shape: tuple[int, int], *, storey_px: int = 100) -> np.ndarray:
+    """A building front (row 0 at the street; about 3 cm texels): a wall shade with faint
+    courses, a ground floor of shop windows and a door, storeys of framed windows with
+    mullions and sills in regular bays, and a cornice band at the top."""
+    rows, cols = shape
+    wall = rng.uniform(120, 215)
+    img = np.full(shape, wall, np.float32)
+    img[(np.arange(rows) % 12) == 0, :] = wall - 12.0  # courses
+    blotch = rng.normal(0.0, 1.0, (rows // 40 + 2, cols // 40 + 2)).astype(np.float32)
+    img += 6.0 * cv2.resize(blotch, (cols, rows), interpolation=cv2.INTER_CUBIC)
+    ground = min(rows, int(storey_px * 1.3))
+    # ground floor: shop windows and a door
+    x = int(rng.integers(4, 20))
+    while x < cols - 30:
+        w = int(rng.integers(40, 110))
+        if rng.random() < 0.25:  # a door
+            w = 34
+            cv2.rectangle(img, (x, 0), (x + w, int(ground * 0.75)), float(rng.uniform(40, 90)), thickness=-1)
+            cv2.rectangle(img, (x, 0), (x + w, int(ground * 0.75)), 25.0, thickness=3)
+        else:
+            glass = float(rng.uniform(35, 110))
+            cv2.rectangle(img, (x, int(ground * 0.12)), (min(x + w, cols - 2), int(ground * 0.8)), glass, thickness=-1)
+            cv2.rectangle(img, (x, int(ground * 0.12)), (min(x + w, cols - 2), int(ground * 0.8)), 235.0, thickness=3)
+            for k in range(1, int(rng.integers(1, 4))):
+                xm = x + k * w // 3
+                cv2.line(img, (xm, int(ground * 0.12)), (xm, int(ground * 0.8)), 235.0, 2)
+        x += w + int(rng.integers(10, 30))
+    img[ground - 4 : ground, :] = wall - 50.0  # the ground floor's ledge
+    # storeys of windows
+    bay = int(rng.integers(60, 90))
+    win_w, win_h = int(bay * rng.uniform(0.45, 0.6)), int(storey_px * rng.uniform(0.45, 0.6))
+    frame = float(rng.choice([235.0, 60.0]))
+    offset = int(rng.integers(0, bay))
+    y = ground + int(storey_px * 0.25)
+    while y + win_h < rows - 20:
+        for x0 in range(offset % bay, cols - win_w, bay):
+            glass = float(rng.uniform(25, 90) if rng.random() < 0.8 else rng.uniform(150, 210))  # some reflect the sky
+            cv2.rectangle(img, (x0, y), (x0 + win_w, y + win_h), glass, thickness=-1)
+            cv2.rectangle(img, (x0, y), (x0 + win_w, y + win_h), frame, thickness=3)
+            cv2.line(img, (x0 + win_w // 2, y), (x0 + win_w // 2, y + win_h), frame, 2)
+            cv2.line(img, (x0, y + win_h * 2 // 3), (x0 + win_w, y + win_h * 2 // 3), frame, 2)
+            cv2.rectangle(img, (x0 - 3, y - 6), (x0 + win_w + 3, y - 2), wall - 45.0, thickness=-1)  # the sill (below: row 0 is down)
+        y += storey_px
+    img[max(rows - 8, 0) :, :] = wall - 60.0  # cornice
+    return _finish(img, rng, grain=4.0)
+
+
+def _asphalt(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """Float asphalt: dark grain, blotches, lighter and darker repair patches, a few cracks."""
+    rows, cols = shape
+    img = np.full(shape, rng.uniform(70, 95), np.float32)
+    blotch = rng.normal(0.0, 1.0, (rows // 24 + 2, cols // 24 + 2)).astype(np.float32)
+    img += 7.0 * cv2.resize(blotch, (cols, rows), interpolation=cv2.INTER_CUBIC)
+    for _ in range(max(1, rows * cols // 60000)):
+        x0, y0 = int(rng.integers(0, cols)), int(rng.integers(0, rows))
+        w, h = int(rng.integers(10, 80)), int(rng.integers(10, 60))
+        cv2.rectangle(img, (x0, y0), (x0 + w, y0 + h), float(rng.uniform(45, 125)), thickness=-1)
+    for _ in range(max(1, rows * cols // 150000)):
+        pts = np.cumsum(rng.integers(-12, 13, (8, 2)), axis=0) + [int(rng.integers(0, cols)), int(rng.integers(0, rows))]
+        cv2.polylines(img, [pts.astype(np.int32)], False, 35.0, 1)
+    return img
+
+
+def asphalt(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """Plain patched asphalt (a junction's surface) with the odd manhole cover."""
+    rows, cols = shape
+    img = _asphalt(rng, shape)
+    for _ in range(max(1, rows * cols // 400000)):
+        c = (int(rng.integers(0, cols)), int(rng.integers(0, rows)))
+        cv2.circle(img, c, 14, 55.0, thickness=-1)
+        cv2.circle(img, c, 14, 130.0, thickness=2)
+    return _finish(img, rng, grain=7.0)
+
+
+def road(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """A street's cross-section along the rows (19 m across: a 3.5 m paved sidewalk, a curb,
+    a 2.5 m parking lane with bay marks, two 3.5 m lanes split by a dashed centre line, a
+    parking lane, a curb, a sidewalk), the road running along the columns (about 2.5 cm
+    texels: 3 m dashes every 9 m)."""
+    rows, cols = shape
+    img = _asphalt(rng, shape)
+    m = rows / 19.0  # texels per metre across
+    walk = int(round(3.5 * m))
+    slab = max(4, int(round(1.0 * m)))
+    for y0, y1 in ((0, walk), (rows - walk, rows)):  # sidewalks: slabs with joints
+        yy, xx = np.mgrid[y0:y1, 0:cols]
+        shade = rng.uniform(140, 190, ((y1 - y0) // slab + 2, cols // slab + 2)).astype(np.float32)
+        part = shade[(yy - y0) // slab, xx // slab]
+        part[((yy - y0) % slab < 2) | (xx % slab < 2)] = 105.0
+        img[y0:y1] = part
+    curb = max(2, int(round(0.15 * m)))
+    img[walk : walk + curb] = 205.0
+    img[rows - walk - curb : rows - walk] = 205.0
+    line = max(2, int(round(0.12 * m)))
+    for y in (walk + int(round(2.5 * m)), rows - walk - int(round(2.5 * m))):  # lane edges
+        img[y : y + line] = 215.0
+    period, dash = max(8, int(round(9.0 * m))), max(4, int(round(3.0 * m)))
+    centre = rows // 2 - line // 2
+    start = int(rng.integers(0, period))
+    for x0 in range(start - period, cols, period):
+        img[centre : centre + line, max(x0, 0) : max(x0 + dash, 0)] = 220.0
+    bay = max(8, int(round(5.5 * m)))
+    for y0, y1 in ((walk + curb, walk + int(round(2.5 * m))), (rows - walk - int(round(2.5 * m)), rows - walk - curb)):
+        for x0 in range(int(rng.integers(0, bay)), cols, bay):
+            img[y0:y1, x0 : x0 + line] = 200.0
+    return _finish(img, rng, grain=6.0)
+
+
+def faint(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """Low-texture paint: a near-uniform shade with a slow gradient and, sparsely, a few
+    marks (rectangles, lines) only 14-22 grey levels off it: barely enough for ORB's FAST
+    threshold of 10, and for LSD."""
+    rows, cols = shape
+    base = rng.uniform(120, 190)
+    yy, xx = np.mgrid[0:rows, 0:cols].astype(np.float32)
+    img = base + 8.0 * (xx / max(cols, 1) - 0.5) + 5.0 * (yy / max(rows, 1) - 0.5)
+    for _ in range(max(1, rows * cols // 40000)):
+        x0, y0 = int(rng.integers(0, cols)), int(rng.integers(0, rows))
+        w, h = int(rng.integers(20, 120)), int(rng.integers(20, 120))
+        delta = float(rng.choice([-1.0, 1.0]) * rng.uniform(14, 22))
+        if rng.random() < 0.6:
+            cv2.rectangle(img, (x0, y0), (x0 + w, y0 + h), base + delta, thickness=-1)
+        else:
+            cv2.line(img, (x0, y0), (x0 + w, y0 + h // 4), base + delta, 3)
+    return _finish(img, rng, grain=1.5)
+
+
 _GENERATORS: dict[str, Callable[[np.random.Generator, tuple[int, int]], np.ndarray]] = {
     "tiles": tiles,
     "poster": poster,
@@ -171,6 +302,10 @@ _GENERATORS: dict[str, Callable[[np.random.Generator, tuple[int, int]], np.ndarr
     "checker": checker,
     "door": door,
     "plaster": plaster,
+    "facade": facade,
+    "road": road,
+    "asphalt": asphalt,
+    "faint": faint,
 }
 
 

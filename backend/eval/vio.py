@@ -29,8 +29,8 @@ def visual_keyframes(seq, duration_s: float, *, rate_hz: float = 10.0, rotation_
     camera poses in c0 with rotation noise of `rotation_deg` (degrees, 1 σ of the angle) and
     position noise of `position_fraction` of the mean keyframe-to-keyframe distance (1 σ of
     the norm), both drawn from `rng`; the first keyframe is exact (it defines c0)."""
-    step = int(round(seq.settings.camera_rate_hz / rate_hz))
-    index = np.arange(0, int(round(duration_s * seq.settings.camera_rate_hz)) + 1, step)
+    step = int(round(seq.camera_rate_hz / rate_hz))
+    index = np.arange(0, int(round(duration_s * seq.camera_rate_hz)) + 1, step)
     T = seq.T_world_rect0[index]
     R_world_c0, p_world_c0 = T[0, :3, :3], T[0, :3, 3]
     R = R_world_c0.T @ T[:, :3, :3]

@@ -30,7 +30,6 @@ MC_SCENES: dict[str, str] = {
     "mc-a": "Monte-Carlo sequence a: four walls, camera on a circle (DESIGN §4)",
     "mc-b": "Monte-Carlo sequence b: one wall, camera sliding along it",
 }
-CAMERA_RATE_HZ = 20.0  # rendered scenes' frame rate (before `stride`)
 
 
 class Mode(enum.StrEnum):
@@ -44,7 +43,8 @@ class EngineConfig:
 
     Input: `scene` (a built-in rendered scene's name, a scene file, or `mc-a` / `mc-b`;
     None: the default scene) or `dataset` (a path `open_dataset` reads). Rendered scenes:
-    `duration_s` seconds of motion at `CAMERA_RATE_HZ / stride` frames per second, moving
+    `duration_s` seconds of motion at the scene rig's frame rate / `stride` (20 Hz, `street`
+    10 Hz), moving
     `speed` times as fast along the same path. `frames`: only the first N frames of an
     image input (None: all). `mislabel`: the Monte-Carlo worlds' fraction of features with
     a wrong plane label. `seed`: the scene's, its noise's and the RANSACs'. `segmenter`:
@@ -152,7 +152,7 @@ def _open_images(config: EngineConfig) -> tuple[object, str]:
 
     scene = config.scene or DEFAULT_SCENE
     scene_obj = builtin_scene(scene) if scene in SCENE_NAMES else load_scene(pathlib.Path(scene))
-    settings = SequenceSettings(duration_s=config.duration_s, seed=config.seed, camera_rate_hz=CAMERA_RATE_HZ / config.stride, speed=config.speed)
+    settings = SequenceSettings(duration_s=config.duration_s, seed=config.seed, camera_rate_hz=scene_obj.rig.camera_rate_hz / config.stride, speed=config.speed)
     label = scene if scene == scene_obj.name else f"{scene_obj.name} from {scene}"
     every = f", every {config.stride}th frame" if config.stride > 1 else ""
     faster = f", {config.speed:g}× speed" if config.speed != 1.0 else ""

@@ -195,7 +195,7 @@ class RunSpec:
 @dataclasses.dataclass(frozen=True)
 class SweepMatrix:
     """The axes of a sweep (module docstring); :meth:`runs` spans them. `segmenters` None:
-    each mode's default. No `scenes` and no `datasets`: the built-in scenes."""
+    each mode's default. No `scenes` and no `datasets`: the standard scenes (`STANDARD_SCENES`: room, corridor, boxes)."""
 
     scenes: tuple[str, ...] = ()
     datasets: tuple[str, ...] = ()
@@ -219,9 +219,9 @@ class SweepMatrix:
         """Every run, inputs outermost (scenes, then datasets), then seeds, modes,
         segmenters, speeds, strides, windows and variants innermost; MatrixError for two runs with
         one folder name (two datasets of one folder name) or more than MAX_RUNS runs."""
-        from backend.data.scenes import SCENE_NAMES
+        from backend.data.scenes import STANDARD_SCENES
 
-        scenes = self.scenes or (() if self.datasets else SCENE_NAMES)
+        scenes = self.scenes or (() if self.datasets else STANDARD_SCENES)
         inputs: list[tuple[str | None, str | None]] = [(s, None) for s in scenes] + [(None, d) for d in self.datasets]
         runs = []
         for (scene, dataset), seed, mode in itertools.product(inputs, self.seeds, self.modes):

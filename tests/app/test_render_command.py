@@ -50,3 +50,20 @@ def test_malformed_scene_file_names_the_file(tmp_path: pathlib.Path, capsys: pyt
     scene.write_text('{"name": "x", "rectangles": [ {"p0": [0, 0]')
     assert cli.main(["render", "--scene", str(scene), "--out", str(tmp_path / "out")]) == 2
     _one_error(capsys, "my_scene.json")
+
+
+@pytest.mark.parametrize(("fmt", "folder"), [("kitti", "sequences/00"), ("euroc", "")])
+def test_street_renders_a_kitti_like_dataset_that_reads_back(tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str], fmt: str, folder: str) -> None:
+    """The stress scene `street` written as KITTI or EuRoC: 10 Hz pairs with its KITTI-like
+    camera, which `--dataset` reads back as it was rendered."""
+    from backend.data.rigs import KITTI_RIG
+    from backend.data.source import open_dataset
+
+    out = tmp_path / fmt
+    assert cli.main(["render", "--scene", "street", "--format", fmt, "--out", str(out), "--duration", "0.3"]) == 0
+    assert "rendered 4 stereo pairs of street" in capsys.readouterr().out
+    dataset = open_dataset(out / folder)
+    assert dataset.camera == KITTI_RIG.camera and len(dataset) == 4
+    assert list(dataset.timestamps_ns) == [0, 100_000_000, 200_000_000, 300_000_000]
+    assert cli.main(["run", "--dataset", str(out / folder), "--variant", "P-wo", "--out", str(tmp_path / "run")]) == 0
+    assert "4 frames" in capsys.readouterr().out

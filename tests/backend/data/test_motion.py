@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from backend.data.motion import GRAVITY_WORLD, ImuNoise, add_imu_noise, imu_samples, random_trajectory
+from backend.data.motion import GRAVITY_WORLD, ImuNoise, Shake, ShakenTrajectory, SlowStart, WarpedTrajectory, add_imu_noise, imu_samples, random_trajectory
 
 DURATION_S = 10.0
 DT = 0.005
@@ -99,3 +99,37 @@ def test_seeded_and_reproducible() -> None:
     t = np.linspace(0, 5, 11)
     np.testing.assert_array_equal(a.position(t), b.position(t))
     assert not np.allclose(a.position(t), random_trajectory(np.random.default_rng(8)).position(t))
+
+
+def _wrapped(trajectory):
+    """A shaken trajectory and a slow-starting one, both built on `trajectory`."""
+    shake = Shake(amplitude_m=0.008, amplitude_deg=1.5, band_hz=(2.0, 6.0)).trajectory(np.random.default_rng(1))
+    return ShakenTrajectory(trajectory, shake), WarpedTrajectory(trajectory, SlowStart(still_s=3.0, ramp_s=2.0, creep=0.01))
+
+
+def test_shaken_and_slow_started_trajectories_keep_their_derivatives(trajectory) -> None:
+    t = np.linspace(0.0, DURATION_S, 53)
+    h = 1e-5
+    for wrapped in _wrapped(trajectory):
+        np.testing.assert_allclose(wrapped.velocity(t), (wrapped.position(t + h) - wrapped.position(t - h)) / (2 * h), atol=1e-7)
+        np.testing.assert_allclose(wrapped.acceleration(t), (wrapped.velocity(t + h) - wrapped.velocity(t - h)) / (2 * h), atol=1e-6)
+
+
+def test_noise_free_samples_reproduce_shaken_and_slow_started_trajectories(trajectory) -> None:
+    for wrapped in _wrapped(trajectory):
+        imu = imu_samples(wrapped, start_ns=0, end_ns=int(DURATION_S * 1e9))
+        dp, dv, dr = _preintegrate(imu, wrapped, "PreintegratedImuMeasurementsManifold")
+        assert dp < 2e-5 and dv < 1e-5 and dr < 1e-7, (dp, dv, dr)
+
+
+def test_slow_start_warps_time_smoothly() -> None:
+    slow = SlowStart(still_s=3.0, ramp_s=2.0, creep=0.01)
+    t = np.array([0.0, 3.0, 4.0, 5.0, 6.0])
+    tau, rate, rate_dot = slow.warp(t)
+    np.testing.assert_allclose(tau, [0.0, 0.03, 0.04 + 0.99 * 2.0 * 0.5**4 * 1.25, 0.05 + 0.99, 0.05 + 0.99 + 1.0], atol=1e-12)  # ∫ of the quintic step: x⁴(5/2 - 3x + x²)
+    np.testing.assert_allclose(rate, [0.01, 0.01, 0.505, 1.0, 1.0], atol=1e-12)
+    assert rate_dot[0] == rate_dot[-1] == 0.0 and rate_dot[2] > 0
+    with pytest.raises(ValueError, match="creep"):
+        SlowStart(creep=1.5)
+    with pytest.raises(ValueError, match="band_hz"):
+        Shake(band_hz=(6.0, 2.0))
