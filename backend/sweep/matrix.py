@@ -372,11 +372,7 @@ def _topics(value: object, name: str) -> tuple[tuple[str, str], ...]:
 
 def _model(item: object, name: str, base: pathlib.Path | None) -> str:
     """An existing model file (as an absolute path)."""
-    text = _text(item, name)
-    path = _resolve(text, base)
-    if not _is(path, name, text, file=True):
-        raise MatrixError(f"{name}: {text}: no such file")
-    return str(path)
+    return _existing(item, name, base, file=True)
 
 
 def _unique(items: Sequence[Any]) -> list[Any]:
@@ -421,10 +417,15 @@ def _scene(item: object, name: str, base: pathlib.Path | None) -> str:
 
 def _dataset(item: object, name: str, base: pathlib.Path | None) -> str:
     """An existing path (as an absolute path); whether it is a dataset is the run's to find."""
+    return _existing(item, name, base, file=False)
+
+
+def _existing(item: object, name: str, base: pathlib.Path | None, *, file: bool) -> str:
+    """An existing file (`file`) or path, taken from `base`, as an absolute path."""
     text = _text(item, name)
     path = _resolve(text, base)
-    if not _is(path, name, text, file=False):
-        raise MatrixError(f"{name}: {text}: no such file or folder")
+    if not _is(path, name, text, file=file):
+        raise MatrixError(f"{name}: {text}: no such file" + ("" if file else " or folder"))
     return str(path)
 
 
