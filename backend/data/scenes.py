@@ -24,9 +24,7 @@ walls) and `exposure` (auto-exposure steps and ramps). User scenes are JSON file
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
-import math
 import os
 import pathlib
 from typing import Any
@@ -37,16 +35,23 @@ from backend.data.body_motion import Motion, motion_from_dict, motion_to_dict
 from backend.data.exposure import ExposureSchedule, GainChange, exposure_from_dict, exposure_to_dict
 from backend.data.json_fields import integer, number, objects, vector
 from backend.data.motion import Shake, SlowStart
-from backend.data.rigs import EUROC_RIG, Rig, rig_from_dict, rig_to_dict
-from backend.data.textures import DEFAULT_TEXEL_M, KINDS, texture_shape
+from backend.data.rigs import EUROC_RIG, rig_from_dict, rig_to_dict
+from backend.data.scene_model import MAX_COORDINATE_M as MAX_COORDINATE_M
+from backend.data.scene_model import MAX_EXTENT_M as MAX_EXTENT_M
+from backend.data.scene_model import Z_UP
+from backend.data.scene_model import Cylinder as Cylinder
+from backend.data.scene_model import Rectangle as Rectangle
+from backend.data.scene_model import Scene as Scene
+from backend.data.scene_model import Sphere as Sphere
+from backend.data.scene_model import Texture as Texture
+from backend.data.scene_model import box_rectangles as box_rectangles
+from backend.data.scene_model import facing_rectangle as facing_rectangle
+from backend.data.textures import DEFAULT_TEXEL_M
 
 STANDARD_SCENES = ("room", "corridor", "boxes")  # what a sweep runs by default
 STRESS_SCENES = ("street", "shake", "slow-start", "low-texture", "exposure")
 SCENE_NAMES = (*STANDARD_SCENES, *STRESS_SCENES)
 DEFAULT_SCENE = "room"
-_MAX_PLANE_ID = 32766  # plane masks are int16
-MAX_COORDINATE_M = 1e5  # scene coordinates (m): beyond, float32 rendering loses the centimetre
-MAX_EXTENT_M = 1e4  # sizes and radii (m)
 
 
 class SceneFileError(ValueError):
@@ -58,197 +63,12 @@ class SceneFileError(ValueError):
         super().__init__(f"{self.path}: {self.reason}")
 
 
-@dataclasses.dataclass(frozen=True)
-class Texture:
-    """A procedural texture (`backend.data.textures`): kind, seed and texel size (metres)."""
-
-    kind: str
-    seed: int
-    texel_m: float = DEFAULT_TEXEL_M
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class Rectangle:
-    """A textured planar rectangle in the world frame: corner `p0` (3,), unit orthogonal
-    axes `u`, `v` (3,), extents `size = (w, h)` metres along u and v, and its plane id."""
-
-    p0: np.ndarray
-    u: np.ndarray
-    v: np.ndarray
-    size: tuple[float, float]
-    texture: Texture
-    plane_id: int
-
-    @property
-    def normal(self) -> np.ndarray:
-        """Unit normal `u × v` (3,), world frame."""
-        return np.cross(self.u, self.v)
-
-    @property
-    def plane(self) -> np.ndarray:
-        """`(n, d)` as (4,): `n·X + d = 0` for world points X on the rectangle."""
-        n = self.normal
-        return np.concatenate([n, [-float(n @ self.p0)]])
-
-    @functools.cached_property
-    def texture_shape(self) -> tuple[int, int]:
-        """(rows, cols) of its texture image."""
-        return texture_shape(self.size[0], self.size[1], texel_m=self.texture.texel_m)
-
-    @functools.cached_property
-    def corners(self) -> np.ndarray:
-        """World corners (4, 3) in the order p0, p0 + w u, p0 + w u + h v, p0 + h v."""
-        w, h = self.size
-        corners = np.stack([self.p0, self.p0 + w * self.u, self.p0 + w * self.u + h * self.v, self.p0 + h * self.v])
-        corners.setflags(write=False)
-        return corners
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class Sphere:
-    """A sphere (world centre (3,), radius in metres) with base grey `shade` (0..255) and a
-    checker of `pattern_cells` cells around its equator."""
-
-    centre: np.ndarray
-    radius: float
-    shade: float = 170.0
-    pattern_cells: int = 8
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class Cylinder:
-    """A vertical cylinder with caps: axis through world `centre_xy` (2,), radius and
-    `z_range = (z0, z1)` metres; grey `shade` and `pattern_cells` checker cells around it."""
-
-    centre_xy: np.ndarray
-    radius: float
-    z_range: tuple[float, float]
-    shade: float = 150.0
-    pattern_cells: int = 12
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class Scene:
-    """Rectangles (drawn in order: later ones win ties, so decals follow their wall),
-    spheres and cylinders; `camera_region` is (centre (3,), half_extent (3,)) metres, a box
-    of free space where cameras may move (None when unknown), where a random path moves.
-    `rig`: the cameras and rates that see it; `motion`: how the body moves; `exposure`: a
-    gain schedule of the images (None: constant)."""
-
-    name: str
-    rectangles: tuple[Rectangle, ...]
-    spheres: tuple[Sphere, ...] = ()
-    cylinders: tuple[Cylinder, ...] = ()
-    camera_region: tuple[np.ndarray, np.ndarray] | None = None
-    rig: Rig = EUROC_RIG
-    motion: Motion = Motion()
-    exposure: ExposureSchedule | None = None
-
-    def __post_init__(self) -> None:
-        _validate(self)
-
-    @functools.cached_property
-    def planes(self) -> dict[int, np.ndarray]:
-        """Plane table: id -> `(n, d)` (4,), world frame, `n·X + d = 0` (the first
-        rectangle's with that id)."""
-        table: dict[int, np.ndarray] = {}
-        for rect in self.rectangles:
-            table.setdefault(rect.plane_id, rect.plane)
-        return table
-
-
-def _validate(scene: Scene) -> None:
-    """Raises ValueError with a short reason when the scene is not well formed."""
-    planes: dict[int, tuple[int, np.ndarray]] = {}
-    for i, rect in enumerate(scene.rectangles):
-        where = f"rectangles[{i}]"
-        for name in ("p0", "u", "v"):
-            value = getattr(rect, name)
-            if value.shape != (3,) or not np.all(np.isfinite(value)):
-                raise ValueError(f"{where}.{name}: expected 3 finite numbers")
-        if abs(np.linalg.norm(rect.u) - 1.0) > 1e-6 or abs(np.linalg.norm(rect.v) - 1.0) > 1e-6:
-            raise ValueError(f"{where}: u and v must be unit vectors")
-        if abs(float(rect.u @ rect.v)) > 1e-6:
-            raise ValueError(f"{where}: u and v must be orthogonal")
-        if not (len(rect.size) == 2 and all(math.isfinite(s) and s > 0 for s in rect.size)):
-            raise ValueError(f"{where}.size: expected two positive extents (metres)")
-        if rect.texture.kind not in KINDS:
-            raise ValueError(f"{where}.texture.kind: unknown {rect.texture.kind!r} (known: {', '.join(KINDS)})")
-        if not (rect.texture.texel_m > 0 and math.isfinite(rect.texture.texel_m)):
-            raise ValueError(f"{where}.texture.texel_m: must be positive")
-        if not 0 <= rect.plane_id <= _MAX_PLANE_ID:
-            raise ValueError(f"{where}.plane_id: must be in 0..{_MAX_PLANE_ID}")
-        plane = rect.plane
-        if rect.plane_id in planes:
-            first, other = planes[rect.plane_id]
-            if other[:3] @ plane[:3] < 1.0 - 1e-9 or abs(other[3] - plane[3]) > 1e-6:
-                raise ValueError(f"{where}: plane_id {rect.plane_id} is shared with rectangles[{first}] but the two are not coplanar (same side)")
-        else:
-            planes[rect.plane_id] = (i, plane)
-        if np.max(np.abs(rect.p0)) > MAX_COORDINATE_M or max(rect.size) > MAX_EXTENT_M:
-            raise ValueError(f"{where}: coordinates within ±{MAX_COORDINATE_M:g} m and sizes up to {MAX_EXTENT_M:g} m")
-    for i, sphere in enumerate(scene.spheres):
-        if sphere.centre.shape != (3,) or not np.all(np.abs(sphere.centre) <= MAX_COORDINATE_M) or not 0 < sphere.radius <= MAX_EXTENT_M:
-            raise ValueError(f"spheres[{i}]: expected a finite centre (3 numbers, within ±{MAX_COORDINATE_M:g} m) and a radius in (0, {MAX_EXTENT_M:g}] m")
-    for i, cyl in enumerate(scene.cylinders):
-        if cyl.centre_xy.shape != (2,) or not np.all(np.abs(cyl.centre_xy) <= MAX_COORDINATE_M) or not 0 < cyl.radius <= MAX_EXTENT_M:
-            raise ValueError(f"cylinders[{i}]: expected a finite centre_xy (2 numbers, within ±{MAX_COORDINATE_M:g} m) and a radius in (0, {MAX_EXTENT_M:g}] m")
-        if not (len(cyl.z_range) == 2 and np.all(np.abs(cyl.z_range) <= MAX_COORDINATE_M) and cyl.z_range[0] < cyl.z_range[1]):
-            raise ValueError(f"cylinders[{i}].z_range: expected finite [z0, z1] with z0 < z1")
-    if scene.camera_region is not None:
-        centre, half = (np.asarray(v, dtype=float) for v in scene.camera_region)
-        if centre.shape != (3,) or not np.all(np.abs(centre) <= MAX_COORDINATE_M):
-            raise ValueError(f"camera_region.centre: expected 3 finite numbers within ±{MAX_COORDINATE_M:g} m")
-        if half.shape != (3,) or not np.all((half >= 0) & (half <= MAX_EXTENT_M)):
-            raise ValueError(f"camera_region.half_extent: expected 3 numbers in [0, {MAX_EXTENT_M:g}] m")
-
-
-# ----------------------------------------------------------------------------- builders
-
-_Z = np.array([0.0, 0.0, 1.0])
-
-
-def facing_rectangle(centre: np.ndarray, normal: np.ndarray, size: tuple[float, float], texture: Texture, plane_id: int) -> Rectangle:
-    """A rectangle centred at world `centre` whose normal `u × v` is `normal` (it faces
-    that way). For non-horizontal normals u is horizontal and v points up; for horizontal
-    surfaces u is world x."""
-    n = np.asarray(normal, dtype=float)
-    n = n / np.linalg.norm(n)
-    if abs(n[2]) < 0.9:
-        u = np.cross(_Z, n)
-        u /= np.linalg.norm(u)
-    else:
-        u = np.array([1.0, 0.0, 0.0])
-        u -= (u @ n) * n
-        u /= np.linalg.norm(u)
-    v = np.cross(n, u)
-    w, h = size
-    p0 = np.asarray(centre, dtype=float) - 0.5 * w * u - 0.5 * h * v
-    return Rectangle(p0=p0, u=u, v=v, size=(float(w), float(h)), texture=texture, plane_id=plane_id)
-
-
-def box_rectangles(centre_xy: tuple[float, float], size: tuple[float, float, float], *, z0: float = 0.0, kind: str, seed: int, first_plane_id: int) -> list[Rectangle]:
-    """The five faces (four sides facing out, top facing up) of an axis-aligned box
-    standing at height z0; plane ids first_plane_id .. first_plane_id + 4."""
-    cx, cy = centre_xy
-    sx, sy, sz = size
-    zc = z0 + 0.5 * sz
-    faces = [
-        ((cx + sx / 2, cy, zc), (1, 0, 0), (sy, sz)),
-        ((cx - sx / 2, cy, zc), (-1, 0, 0), (sy, sz)),
-        ((cx, cy + sy / 2, zc), (0, 1, 0), (sx, sz)),
-        ((cx, cy - sy / 2, zc), (0, -1, 0), (sx, sz)),
-        ((cx, cy, z0 + sz), (0, 0, 1), (sx, sy)),
-    ]
-    return [facing_rectangle(np.array(c, float), np.array(n, float), s, Texture(kind, seed * 10 + k), first_plane_id + k) for k, (c, n, s) in enumerate(faces)]
-
-
 def _room() -> Scene:
     """6 × 5 × 3 m room (x ∈ [-3, 3], y ∈ [-2.5, 2.5], z ∈ [0, 3])."""
     X, Y, H = 3.0, 2.5, 3.0
     rects = [
-        facing_rectangle(np.array([0, 0, 0.0]), _Z, (2 * X, 2 * Y), Texture("tiles", 1), 0),
-        facing_rectangle(np.array([0, 0, H]), -_Z, (2 * X, 2 * Y), Texture("tiles", 2, 0.01), 1),
+        facing_rectangle(np.array([0, 0, 0.0]), Z_UP, (2 * X, 2 * Y), Texture("tiles", 1), 0),
+        facing_rectangle(np.array([0, 0, H]), -Z_UP, (2 * X, 2 * Y), Texture("tiles", 2, 0.01), 1),
         facing_rectangle(np.array([X, 0, H / 2]), np.array([-1.0, 0, 0]), (2 * Y, H), Texture("plaster", 3), 2),
         facing_rectangle(np.array([-X, 0, H / 2]), np.array([1.0, 0, 0]), (2 * Y, H), Texture("panels", 4), 3),
         facing_rectangle(np.array([0, Y, H / 2]), np.array([0, -1.0, 0]), (2 * X, H), Texture("plaster", 5), 4),
@@ -268,7 +88,7 @@ def _room() -> Scene:
     ]
     for k, (c, n, s, kind, pid) in enumerate(decals):
         rects.append(facing_rectangle(np.array(c, float), np.array(n, float), s, Texture(kind, 100 + k), pid))
-    rects.append(facing_rectangle(np.array([-2.0, 1.6, 0.75]), _Z, (1.2, 0.7), Texture("panels", 7), 6))
+    rects.append(facing_rectangle(np.array([-2.0, 1.6, 0.75]), Z_UP, (1.2, 0.7), Texture("panels", 7), 6))
     rects += box_rectangles((2.2, -1.7), (0.6, 0.6, 0.6), kind="poster", seed=8, first_plane_id=7)
     legs = [Cylinder(np.array([-2.0 + sx * 0.55, 1.6 + sy * 0.3]), 0.03, (0.0, 0.75), shade=60.0, pattern_cells=4) for sx in (-1, 1) for sy in (-1, 1)]
     return Scene(
@@ -284,8 +104,8 @@ def _corridor() -> Scene:
     """A 16 m long, 2 m wide, 2.5 m high corridor along x (x ∈ [0, 16], y ∈ [-1, 1])."""
     L, Y, H = 16.0, 1.0, 2.5
     rects = [
-        facing_rectangle(np.array([L / 2, 0, 0.0]), _Z, (L, 2 * Y), Texture("checker", 11), 0),
-        facing_rectangle(np.array([L / 2, 0, H]), -_Z, (L, 2 * Y), Texture("tiles", 12, 0.01), 1),
+        facing_rectangle(np.array([L / 2, 0, 0.0]), Z_UP, (L, 2 * Y), Texture("checker", 11), 0),
+        facing_rectangle(np.array([L / 2, 0, H]), -Z_UP, (L, 2 * Y), Texture("tiles", 12, 0.01), 1),
         facing_rectangle(np.array([L / 2, Y, H / 2]), np.array([0, -1.0, 0]), (L, H), Texture("panels", 13), 2),
         facing_rectangle(np.array([L / 2, -Y, H / 2]), np.array([0, 1.0, 0]), (L, H), Texture("plaster", 14), 3),
         facing_rectangle(np.array([0.0, 0, H / 2]), np.array([1.0, 0, 0]), (2 * Y, H), Texture("poster", 15), 4),
@@ -310,7 +130,7 @@ def _corridor() -> Scene:
 def _boxes() -> Scene:
     """A 16 × 16 m hall (open floor, low walls 2 m high at x, y = ±8, no ceiling) with boxes
     of several sizes around a free centre."""
-    rects = [facing_rectangle(np.array([0, 0, 0.0]), _Z, (16.0, 16.0), Texture("checker", 21, 0.008), 0)]
+    rects = [facing_rectangle(np.array([0, 0, 0.0]), Z_UP, (16.0, 16.0), Texture("checker", 21, 0.008), 0)]
     for k, (c, n, kind) in enumerate([((8.0, 0, 1.0), (-1, 0, 0), "tiles"), ((-8.0, 0, 1.0), (1, 0, 0), "panels"), ((0, 8.0, 1.0), (0, -1, 0), "panels"), ((0, -8.0, 1.0), (0, 1, 0), "tiles")]):
         rects.append(facing_rectangle(np.array(c), np.array(n, float), (16.0, 2.0), Texture(kind, 22 + k), 36 + k))
     layout: list[tuple[tuple[float, float], tuple[float, float, float], str]] = [

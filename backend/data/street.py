@@ -32,7 +32,7 @@ import numpy as np
 from backend.data.body_motion import Motion
 from backend.data.rigs import KITTI_RIG
 from backend.data.road import RoadLoop
-from backend.data.scenes import Cylinder, Rectangle, Scene, Sphere, Texture, box_rectangles, facing_rectangle
+from backend.data.scene_model import Cylinder, Rectangle, Scene, Sphere, Texture, box_rectangles, facing_rectangle
 
 CAMERA_HEIGHT_M = 1.65  # the left camera above the road, as KITTI's
 STRAIGHTS_M = (160.0, 100.0)

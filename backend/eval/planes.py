@@ -9,9 +9,17 @@ import numpy as np
 
 if TYPE_CHECKING:
     from backend.geometry.camera import PinholeCamera
-    from backend.pipeline.snapshot import PlaneLandmark
 
 MIN_IMAGE_SHARE = 0.05  # a true plane counts as seen when it covers this share of some keyframe's left image
+
+
+class MapPlane(Protocol):
+    """A map plane as :func:`plane_recovery` reads it (`backend.pipeline.snapshot.PlaneLandmark`):
+    `n·X + d = 0` (world, m) and its patch's world vertices `hull_world` (H, 3)."""
+
+    n: np.ndarray
+    d: float
+    hull_world: np.ndarray
 
 
 @runtime_checkable
@@ -72,7 +80,7 @@ def recovered_planes(
     return np.any(angle_ok & (offset <= max_offset_m), axis=1)
 
 
-def plane_recovery(truth: RenderedPlanes, keyframe_timestamps_ns: np.ndarray, planes: Sequence[PlaneLandmark], *, min_share: float = MIN_IMAGE_SHARE) -> dict[str, Any]:
+def plane_recovery(truth: RenderedPlanes, keyframe_timestamps_ns: np.ndarray, planes: Sequence[MapPlane], *, min_share: float = MIN_IMAGE_SHARE) -> dict[str, Any]:
     """The rendered scene's true planes the final map recovered: `seen`, the true planes
     covering at least `min_share` of some keyframe's left image (the keyframes at
     `keyframe_timestamps_ns`, frames of `truth`); `recovered`, those of them matched by a
