@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from table_sweep import SWEEPS, add_sweep_options, f, publish, sweep_runs
+from table_sweep import SWEEPS, add_sweep_options, axis_options, f, publish, sweep_runs
 
 SWEEP = SWEEPS / "dense_table.toml"
 
@@ -24,9 +24,12 @@ def main() -> int:
     p.add_argument("--duration", type=float, default=None, help=f"seconds of motion (default: {SWEEP.name}'s, 30)")
     add_sweep_options(p, page="docs/results/dense.md")
     args = p.parse_args()
-    options = (["--scenes", args.scene] if args.scene is not None else []) + (["--duration", f"{args.duration:g}"] if args.duration is not None else [])
+    options = axis_options({"--scenes": args.scene, "--duration": None if args.duration is None else f"{args.duration:g}"})
+    finished = sweep_runs(SWEEP, args, options)
+    if not finished:
+        raise SystemExit("dense_table: no run finished (above)")
     runs, rows = [], []
-    for m in sweep_runs(SWEEP, args, options):
+    for m in finished:
         d = m["dense"]
         dist = d["distance_to_true_planes_cm"]
         runs.append({"variant": m["variant"], "ate_rmse_cm": m["ate_rmse_cm"], "keyframe_ate_rmse_cm": m["keyframe_ate_rmse_cm"], "dense": d})
@@ -34,7 +37,7 @@ def main() -> int:
             f"| {m['variant']} | {f(m['keyframe_ate_rmse_cm'])} | {f(dist['median'])} | {f(dist['p90'])} | {100 * dist['within_2cm']:.1f} | {d['triangles']} | {f(d['fusion_ms_per_keyframe'], 1)} |"
         )
         print(rows[-1], flush=True)
-    scene, duration = (runs and m["row"]["input"]), (runs and m["row"]["duration_s"])
+    scene, duration = finished[0]["row"]["input"], finished[0]["row"]["duration_s"]
     body = "\n".join(
         [
             f"`{scene}`, {duration:g} s, one run per variant (`.venv/bin/python scripts/dense_table.py`): every keyframe's rendered depth fused "

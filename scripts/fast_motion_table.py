@@ -23,7 +23,7 @@ import sys
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from table_sweep import SWEEPS, add_sweep_options, f, publish, sweep_runs
+from table_sweep import SWEEPS, add_sweep_options, axis_options, f, publish, sweep_runs
 
 SWEEP = SWEEPS / "fast_motion_table.toml"
 
@@ -74,8 +74,7 @@ def main() -> int:
     parser.add_argument("--variants", default=None, help=f"variants (default: {SWEEP.name}'s, all)")
     add_sweep_options(parser, page="docs/results/pipeline.md")
     args = parser.parse_args()
-    given = {"--scenes": args.scene, "--strides": args.strides, "--speeds": args.speeds, "--variants": args.variants}
-    options = [item for option, value in given.items() if value is not None for item in (option, value)]
+    options = axis_options({"--scenes": args.scene, "--strides": args.strides, "--speeds": args.speeds, "--variants": args.variants})
     results = []
     for r in sweep_runs(SWEEP, args, options, keep=("groundtruth.txt",)):
         results.append(case(r))

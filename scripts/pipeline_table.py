@@ -20,7 +20,7 @@ import argparse
 import json
 import sys
 
-from table_sweep import ROOT, SWEEPS, add_sweep_options, publish, sweep_runs
+from table_sweep import ROOT, SWEEPS, add_sweep_options, axis_options, publish, sweep_runs
 
 from backend.optim.variant import VARIANTS
 
@@ -98,7 +98,7 @@ def main() -> int:
     if args.from_json:
         results = json.loads(out.read_text())
     else:
-        options = (["--duration", f"{args.duration:g}"] if args.duration is not None else []) + (["--scenes", args.scenes] if args.scenes is not None else [])
+        options = axis_options({"--duration": None if args.duration is None else f"{args.duration:g}", "--scenes": args.scenes})
         results = [result(m) for m in sweep_runs(SWEEP, args, options)]
         for r in results:
             print(

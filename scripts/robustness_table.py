@@ -21,7 +21,7 @@ import statistics
 import sys
 
 import numpy as np
-from table_sweep import SWEEPS, add_sweep_options, f, publish, sweep_runs
+from table_sweep import SWEEPS, add_sweep_options, axis_options, f, publish, sweep_runs
 
 SWEEP = SWEEPS / "robustness.toml"
 REPORT_SEEDS = "2-4"
@@ -148,8 +148,7 @@ def main() -> int:
     p.add_argument("--duration", default=None, help=f"seconds of motion (default: {SWEEP.name}'s, 30)")
     add_sweep_options(p, page="docs/results/robustness.md")
     args = p.parse_args()
-    given = {"--seeds": args.seeds, "--scenes": args.scenes, "--speeds": args.speeds, "--modes": args.modes, "--variants": args.variants, "--duration": args.duration}
-    options = [item for option, value in given.items() if value is not None for item in (option, value)]
+    options = axis_options({"--seeds": args.seeds, "--scenes": args.scenes, "--speeds": args.speeds, "--modes": args.modes, "--variants": args.variants, "--duration": args.duration})
     failed: list[dict] = []
     outcomes = [outcome(r) for r in sweep_runs(SWEEP, args, options, keep=("groundtruth.txt",), failed=failed)]
     outcomes += [crashed(row) for row in failed]

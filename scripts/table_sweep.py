@@ -51,6 +51,12 @@ def execution(args: argparse.Namespace) -> list[str]:
     return ["--workers", str(args.workers)] + (["--address", args.address] if args.address else [])
 
 
+def axis_options(given: dict[str, str | None]) -> list[str]:
+    """The sweep options `{"--seeds": "2-4", "--scenes": None, ...}` as arguments, those given
+    (not None) only."""
+    return [item for option, value in given.items() if value is not None for item in (option, value)]
+
+
 def sweep_runs(config: pathlib.Path, args: argparse.Namespace, options: Sequence[str] = (), *, keep: tuple[str, ...] = (), failed: list[dict] | None = None) -> list[dict]:
     """`coplanar sweep --config CONFIG --out OUT OPTIONS` (OUT: `args.out` or a temporary
     folder), as a user runs it; every finished run's metrics.json with its results row

@@ -18,7 +18,7 @@ import json
 import statistics
 import sys
 
-from table_sweep import ROOT, SWEEPS, add_sweep_options, f, publish, sweep_runs
+from table_sweep import ROOT, SWEEPS, add_sweep_options, axis_options, f, publish, sweep_runs
 
 SWEEP = SWEEPS / "vio_start_check.toml"
 SPEED = 2.0
@@ -50,8 +50,7 @@ def main() -> int:
         saved = json.loads(out.read_text())
         args.seconds, runs = saved["seconds"], saved["runs"]
     else:
-        given = {"--seeds": args.seeds, "--scenes": args.scenes, "--variants": args.variants}
-        options = [item for option, value in given.items() if value is not None for item in (option, value)]
+        options = axis_options({"--seeds": args.seeds, "--scenes": args.scenes, "--variants": args.variants})
         options += ["--frames", str(int(round(args.seconds * FPS)))] if args.seconds < 30.0 else []
         for m in sweep_runs(SWEEP, args, options):
             v = m["vio"]

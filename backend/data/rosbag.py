@@ -70,9 +70,9 @@ from backend.data.calibration import (
 from backend.data.errors import DatasetError
 from backend.data.euroc import QUATERNION_NORM_TOLERANCE, GroundTruth, RectifiedRecording, SensorPoses
 from backend.data.motion import ImuData
+from backend.data.topics import TOPIC_NAMES
 
 DEFAULT_TOPICS = {"cam0": "/cam0/image_raw", "cam1": "/cam1/image_raw", "imu0": "/imu0"}
-TOPIC_NAMES = ("cam0", "cam1", "imu0", "groundtruth")
 KALIBR_IMU_FILES = ("imu.yaml", "imu_config.yaml")  # beside a camchain.yaml: Kalibr's name, TUM-VI's
 GROUND_TRUTH_TOPICS = (  # (topic, calibration folder whose sensor.yaml T_BS places the tracked frame in the body)
     ("/vicon/firefly_sbx/firefly_sbx", "vicon0"),  # EuRoC V1/V2: TransformStamped

@@ -21,6 +21,7 @@ import tomllib
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+from backend.data.topics import TOPIC_NAMES
 from backend.optim.variant import VARIANTS, Variant
 
 if TYPE_CHECKING:
@@ -36,7 +37,6 @@ MAX_WINDOW = 1000
 MAX_RUNS = 100_000
 DEFAULT_WINDOW = 10  # as `coplanar run --window`
 TRAJECTORY_FRAMES = ("truth", "camera")  # as `coplanar run --trajectory-frame`
-TOPIC_NAMES = ("cam0", "cam1", "imu0", "groundtruth")  # as `coplanar run --topic` (backend.data.rosbag)
 AXES = (
     "scenes",
     "datasets",
@@ -223,13 +223,13 @@ class SweepMatrix:
 
         scenes = self.scenes or (() if self.datasets else STANDARD_SCENES)
         inputs: list[tuple[str | None, str | None]] = [(s, None) for s in scenes] + [(None, d) for d in self.datasets]
+        shared = {"frames": self.frames, "keyframes": self.keyframes, "dense": self.dense, "trajectory_frame": self.trajectory_frame}
         runs = []
         for (scene, dataset), seed, mode in itertools.product(inputs, self.seeds, self.modes):
             segmenters = self.segmenters or (DEFAULT_SEGMENTER[mode],)
             motions = itertools.product(self.speeds, self.strides) if scene is not None else [(1.0, 1)]
             for segmenter, (speed, stride), window, variant in itertools.product(segmenters, list(motions), self.windows, self.variants):
                 duration = self.duration_s if scene is not None else None
-                shared = {"frames": self.frames, "keyframes": self.keyframes, "dense": self.dense, "trajectory_frame": self.trajectory_frame}
                 reading = {"calib": self.calib, "topics": self.topics} if dataset is not None else {}
                 model = {"segmenter_model": self.segmenter_model} if segmenter == "learned" else {}
                 runs.append(RunSpec(scene, dataset, variant, mode, segmenter, seed, duration_s=duration, speed=speed, stride=stride, window=window, **shared, **reading, **model))  # type: ignore[arg-type]
