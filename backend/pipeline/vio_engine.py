@@ -62,6 +62,7 @@ from backend.frontend.flow import follow
 from backend.frontend.lines import Segments, detect_segments
 from backend.frontend.points import Keypoints
 from backend.frontend.segmentation import PlaneSegmenter
+from backend.geometry import so3
 from backend.imu.preintegration import preintegration_params
 from backend.mapping.map import KeyframeObservations
 from backend.pipeline.core import CoreEngine, PipelineCore
@@ -117,6 +118,8 @@ class VioEngine(CoreEngine):
         "_last_frame_ns",
         "_R_flow",
         "_imu_only_run",
+        "_disagreeing_run",
+        "_restart_pose",
     )
     SHARED: tuple[str, ...] = ("settings", "inertial_source", "imu", "imu_noise", "T_body_camera", "imu_params", "imu_model")
 
@@ -134,6 +137,8 @@ class VioEngine(CoreEngine):
         self._last_frame_ns: int | None = None  # the last frame read
         self._R_flow: np.ndarray | None = None  # the camera's rotation since then, from the gyroscope
         self._imu_only_run = 0
+        self._disagreeing_run = 0  # frames in a row whose supported visual pose is far from the IMU's prediction
+        self._restart_pose: tuple[np.ndarray, np.ndarray] | None = None  # after a detected failure: the new segment's first pose
 
     def step(self) -> Snapshot:
         s = self.settings
@@ -154,8 +159,9 @@ class VioEngine(CoreEngine):
             if self._flow_tracks_on():
                 kp = self.follower.follow(left, kp, self.camera, R_prev_cur=self._R_flow)
             if self.keyframes == self.map.segment_start:
-                R, t = c.initial_pose(i)
-                tracked, reason = Tracked(R, t, np.full(0, -1, np.int64), 0, True), "first frame"
+                R, t = c.initial_pose(i) if self._restart_pose is None else self._restart_pose
+                self._restart_pose = None
+                tracked, reason = Tracked(R, t, np.full(0, -1, np.int64), 0, True), "first frame" if self.keyframes == 0 else "restart after a failure"
             elif self._bootstrapping:
                 bootstrap = self._bootstrap(i, kp, left)
                 if bootstrap is None:
@@ -215,6 +221,7 @@ class VioEngine(CoreEngine):
         self._bootstrapping = True
         self.follower.clear()
         self._lost_run = 0
+        self._disagreeing_run = 0
         self.start.status = "structure from motion: waiting for parallax (after a loss)"
         self.inertial.marginalized_before = self.keyframes
 
@@ -349,6 +356,11 @@ class VioEngine(CoreEngine):
         masks, detection, report, hessian = c.detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=images)
         if not self.inertial.initialized:
             self.start.try_initialize(k, StartContext(self.map, self.inertial, self.imu_model, self.inertial_source, self.settings, c.messages))
+        elif k > self.start.keyframe and (failure := self._failure(k)):
+            reinitializations += 1
+            c.messages.append(f"keyframe {k}: VIO failure ({failure}): starting again from keyframe {k - 1}'s pose (new map segment)")
+            self._restart_pose = (self.map.R_world_keyframe[k - 1].copy(), self.map.t_world_keyframe[k - 1].copy())
+            self._start_segment()
         c.follow_keyframe(i, k)
 
         image = None
@@ -418,6 +430,40 @@ class VioEngine(CoreEngine):
 
     # ------------------------------------------------------------------ followed features (before the initialization)
 
+    def _failure(self, k: int) -> str:
+        """Why keyframe k's inertial state is implausible after its window solve (VioSettings'
+        failure detection), or "" when it is not."""
+        s = self.settings
+        bias, v = self.inertial.bias[k], self.inertial.velocity[k]
+        if not (np.all(np.isfinite(bias)) and np.all(np.isfinite(v)) and np.all(np.isfinite(self.map.t_world_keyframe[k]))):
+            return "non-finite state"
+        if np.linalg.norm(bias[:3]) > s.failure_max_bias_accel:
+            return f"accelerometer bias {np.linalg.norm(bias[:3]):.2f} m/s² > {s.failure_max_bias_accel:g}"
+        if np.linalg.norm(bias[3:]) > s.failure_max_bias_gyro:
+            return f"gyroscope bias {np.linalg.norm(bias[3:]):.3f} rad/s > {s.failure_max_bias_gyro:g}"
+        if np.linalg.norm(v) > s.failure_max_speed_mps:
+            return f"speed {np.linalg.norm(v):.1f} m/s > {s.failure_max_speed_mps:g}"
+        if k > self.map.segment_start:
+            dt = (int(self.map.keyframe_stamp_ns[k]) - int(self.map.keyframe_stamp_ns[k - 1])) * 1e-9
+            jump = float(np.linalg.norm(self.map.t_world_keyframe[k] - self.map.t_world_keyframe[k - 1]))
+            if jump > s.failure_max_speed_mps * dt + s.failure_max_jump_m:
+                return f"a jump of {jump:.2f} m in {dt:.2f} s"
+        if self._disagreeing_run >= s.failure_disagreeing_frames:
+            self._disagreeing_run = 0
+            return f"{s.failure_disagreeing_frames} frames in a row tracked far from the IMU's prediction"
+        return ""
+
+    def _check_prediction(self, predicted: tuple[np.ndarray, np.ndarray], tracked: Tracked) -> None:
+        """Counts the frames in a row whose well-supported visual pose disagrees with the IMU's
+        prediction (VioSettings' failure detection)."""
+        s = self.settings
+        if not (self.inertial.initialized and tracked.ok and tracked.inliers >= s.failure_support_inliers):
+            return
+        R_p, t_p = predicted
+        d_t = float(np.linalg.norm(tracked.t - t_p))
+        d_r = float(np.degrees(np.linalg.norm(so3.log(R_p.T @ tracked.R))))
+        self._disagreeing_run = self._disagreeing_run + 1 if (d_t > s.failure_prediction_m or d_r > s.failure_prediction_deg) else 0
+
     def _flow_tracks_on(self) -> bool:
         """Whether candidate features are followed frame to frame: from the segment's first
         map until the initialization."""
@@ -427,7 +473,9 @@ class VioEngine(CoreEngine):
         """Before the initialization the map points followed from the last frame are matches
         too (the followed ones first, then those the projection search found for the others);
         otherwise the stereo pipeline's tracking."""
-        result = self.core.track(i, kp, predicted=self._predict(i))  # the shared tracking (with this engine's prediction)
+        predicted = self._predict(i)
+        result = self.core.track(i, kp, predicted=predicted)  # the shared tracking (with this engine's prediction)
+        self._check_prediction(predicted, result)
         if not self._flow_tracks_on():
             return result
         need = self.settings.flow_min_tracking_inliers

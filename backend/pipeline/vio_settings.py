@@ -35,7 +35,15 @@ class VioSettings(StereoSettings):
     drift (`rebias_accel`, `rebias_gyro`) beyond which a preintegration is redone. After the
     initialization a frame the images cannot track takes the IMU's predicted pose and becomes
     a keyframe, up to `max_imu_only_keyframes` in a row; `max_lost_frames` untracked frames in
-    a row start a new map segment."""
+    a row start a new map segment.
+    Failure detection (VINS-Mono's, after each window solve once initialized): an
+    accelerometer or gyroscope bias estimate above `failure_max_bias_accel` (m/s²) /
+    `failure_max_bias_gyro` (rad/s), a speed above `failure_max_speed_mps`, a keyframe
+    further from the last than that speed allows (+ `failure_max_jump_m`), or
+    `failure_disagreeing_frames` frames in a row whose visual pose, supported by at least
+    `failure_support_inliers` inliers, is more than `failure_prediction_m` /
+    `failure_prediction_deg` from the IMU's prediction: the inertial state is wrong, and the
+    VIO starts again (a new map segment) from the last keyframe's pose rather than run on."""
 
     window: int = 10
     fixed_horizon: int = 10  # before the initialization only; after it the prior replaces it
@@ -43,7 +51,7 @@ class VioSettings(StereoSettings):
     keyframe_parallax_px: float = 20.0
     max_keyframe_interval_s: float = 0.3
     epipolar_px: float = 2.0
-    min_parallax_deg: float = 1.0
+    min_parallax_deg: float = 0.5
     init_parallax_px: float = 15.0
     init_rotation_free_parallax_px: float = 2.0  # twice the essential matrix RANSAC threshold (1 px)
     init_max_keyframe_interval_s: float = 0.2
@@ -65,9 +73,17 @@ class VioSettings(StereoSettings):
     max_lost_frames: int = 10
     max_imu_only_keyframes: int = 40
     triangulation_keyframes: int = 2
+    failure_max_bias_accel: float = 1.0
+    failure_max_bias_gyro: float = 0.5
+    failure_max_speed_mps: float = 50.0
+    failure_max_jump_m: float = 1.0
+    failure_support_inliers: int = 40
+    failure_prediction_m: float = 0.5
+    failure_prediction_deg: float = 10.0
+    failure_disagreeing_frames: int = 3
     flow_tracks: bool = True
     flow_max_tracks: int = 300
     flow_min_distance_px: float = 20.0
     flow_max_age_keyframes: int = 20
     flow_min_tracking_inliers: int = 12
-    alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2)
+    alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.2, accel_bias_sigma=0.2)

@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 
 from backend.data.source import RenderedTruth, StereoSource
+from backend.eval.trajectory import umeyama_alignment
 from backend.geometry import line as line_geo
 from backend.geometry import so3
 from backend.mapping.map import Map
@@ -22,6 +23,14 @@ from backend.pipeline.imu_window import ImuModel, InertialState
 from backend.pipeline.snapshot import ImuState, frozen
 from backend.pipeline.vio_settings import VioSettings
 from backend.vio.alignment import Alignment, align_visual_inertial
+
+
+def _yaw_between(R_target: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The rotation about world z that turns `R`'s heading into `R_target`'s (both
+    `R_world_x`; their tilts may differ)."""
+    M = R_target @ R.T
+    yaw = np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1])
+    return so3.exp(np.array([0.0, 0.0, yaw]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,22 +93,28 @@ class VioStart:
         k0 = int(kfs[0])
         R_v0, t_v0 = ctx.map.R_world_keyframe[k0].copy(), ctx.map.t_world_keyframe[k0].copy()
         R_w_c0 = result.R_world_c0
-        # Yaw and position of the first aligned keyframe from the ground truth where known
-        # (the gauge: unobservable, chosen so that estimate and truth are drawn together).
+        # Yaw and position of the first aligned keyframe (the gauge: unobservable): at the
+        # first start from the ground truth where known (chosen so that estimate and truth are
+        # drawn together); after a restart (an earlier start succeeded) the estimate's own,
+        # that is the pose the segment started from, so that a restart learns nothing from the
+        # truth and the trajectory goes on from where it was.
         t_w_c0 = np.zeros(3)
         i0 = int(ctx.map.keyframe_frame[k0])
-        if bool(ctx.source.ground_truth_valid[i0]):
+        scale = float(result.scale)
+        Rz = np.eye(3)
+        if self.first[0] >= 0:
+            # A restart: the segment's first keyframe keeps its pose (yaw and position).
+            s0 = ctx.map.segment_start
+            R_s0, t_s0 = ctx.map.R_world_keyframe[s0], ctx.map.t_world_keyframe[s0]
+            Rz = _yaw_between(R_s0, R_w_c0 @ R_v0.T @ R_s0)
+            R_w_c0 = Rz @ R_w_c0
+            t_w_c0 = t_s0 - scale * ((t_s0 - t_v0) @ R_v0) @ R_w_c0.T
+        elif bool(ctx.source.ground_truth_valid[i0]):
             T = ctx.source.T_world_rect0[i0]
-            R_gt = T[:3, :3]
-            M = R_gt @ (R_w_c0).T
-            yaw = np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1])
-            Rz = so3.exp(np.array([0.0, 0.0, yaw]))
+            Rz = _yaw_between(T[:3, :3], R_w_c0)
             R_w_c0 = Rz @ R_w_c0
             t_w_c0 = T[:3, 3].copy()
-            vel_world = result.velocity_world @ Rz.T
-        else:
-            vel_world = result.velocity_world
-        scale = float(result.scale)
+        vel_world = result.velocity_world @ Rz.T
 
         def to_world(p_v: np.ndarray) -> np.ndarray:
             return scale * ((p_v - t_v0) @ R_v0) @ R_w_c0.T + t_w_c0
@@ -128,10 +143,8 @@ class VioStart:
             ctx.map.planes.n[q], ctx.map.planes.d[q] = n_w, float(-n_w @ to_world(x_v[None])[0])
         for j, kf in enumerate(kfs):
             ctx.inertial.velocity[kf] = vel_world[j].copy()
-            ctx.inertial.bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
         for kf in range(ctx.map.segment_start, len(ctx.map)):
-            if kf not in set(kfs.tolist()):
-                ctx.inertial.bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
+            ctx.inertial.bias[kf] = np.r_[result.bias_accel, result.bias_gyro]
         for kf in range(ctx.map.segment_start, len(ctx.map) - 1):
             ctx.inertial.factors[kf] = ctx.model.factor(ctx.map, kf, ctx.inertial.bias[kf])
         # Window: from here on the prior is the gauge; landmarks before the window are frozen.
@@ -181,11 +194,11 @@ class VioStart:
             g_true_c0 = R_gt_c0.T @ np.array([0.0, 0.0, -9.81])
             g = result.gravity_c0
             out["gravity_error_deg"] = float(np.degrees(np.arccos(np.clip(g @ g_true_c0 / (np.linalg.norm(g) * 9.81), -1.0, 1.0))))
-            # Scale: the visual baseline against the true one over the aligned keyframes.
+            # Scale: the aligned keyframes' positions against the true ones, by the similarity
+            # (Umeyama) that fits them best: the estimate's scale over the truth's, minus one.
             t_gt = src.T_world_rect0[ctx.map.keyframe_frame[kfs]][:, :3, 3]
-            d_true = np.linalg.norm(t_gt[-1] - t_gt[0])
-            d_est = np.linalg.norm(ctx.map.t_world_keyframe[kfs[-1]] - ctx.map.t_world_keyframe[kfs[0]])
-            out["scale_error_pct"] = float(100.0 * (d_est - d_true) / max(float(d_true), 1e-12))
+            _, _, s_fit = umeyama_alignment(ctx.map.t_world_keyframe[kfs], t_gt, with_scale=True)
+            out["scale_error_pct"] = float(100.0 * (1.0 / s_fit - 1.0)) if s_fit > 0 else float("nan")
         return out
 
 
