@@ -26,11 +26,16 @@ What differs from stereo:
   keyframe that detected it (at most `flow_max_age_keyframes` back).
 - **Initialization** (`backend.vio.alignment`, VINS-Mono's loosely coupled alignment): once
   `init_keyframes` keyframes span at least `init_min_span_s`, the gyroscope bias, gravity,
-  the scale and the velocities are estimated; the map is scaled and rotated into a
-  gravity-aligned world (yaw and position of the first keyframe from the ground truth
-  where it is known, only to draw both in the same frame), and every following window
-  carries IMU factors. A rejected alignment is retried at the next keyframe with the
+  the scale, the velocities and (under a prior) the accelerometer bias are estimated; the
+  map is scaled and rotated into a gravity-aligned world (yaw and position of the first
+  keyframe from the ground truth where it is known, only to draw both in the same frame; after
+  a restart from the pose the segment started at, never the truth), and every following
+  window carries IMU factors. A rejected alignment is retried at the next keyframe with the
   latest keyframes; the snapshot says what was estimated and why it was rejected.
+- **Failure detection** (VINS-Mono's): after each window solve, an implausible bias, speed
+  or jump, or frames whose well-supported visual pose is far from the IMU's prediction,
+  start a new map segment from the last keyframe's pose (counted as a re-initialization),
+  rather than running on with a wrong inertial state.
 - **Tracking** predicts each frame's pose by preintegrating the IMU from the last keyframe
   (constant velocity before the initialization), then refines it against the local map
   (before the initialization with the followed map points too, above).
