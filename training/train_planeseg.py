@@ -30,7 +30,7 @@ from photometric import Photometric, augment
 from planeseg_data import INPUT_H, INPUT_W, OUTPUT_H, OUTPUT_W, Sample, real_samples, rendered_samples
 
 TRAIN_SEED_BASE = 1000
-DEFAULT_REAL = ROOT.parent / "shared" / "data" / "euroc_mh01_vio"  # 400 frames of MH_01 (the slice's 300 and 100 more)
+DEFAULT_REAL = ROOT.parent / "shared" / "data" / "euroc_mh01_slice"  # the shipped model's; ../shared/data/euroc_mh01_vio holds its 300 frames and 100 more
 
 
 def build_data(args: argparse.Namespace) -> list[Sample]:
@@ -99,12 +99,17 @@ def main() -> int:
         help="rooms with panels leaning against the walls (see planeseg_data.random_room); tried once with --gamma 0.4, worse on held-out and real frames (README), so off by default",
     )
     p.add_argument("--gamma", type=float, default=0.0, help="an older gamma jitter after the brightness / contrast one: gamma drawn from exp(±gamma)")
-    p.add_argument("--photos", type=float, default=0.5, help="share of the rendered surfaces and decals wearing real photographs (training/real_textures.py); 0: procedural textures only")
+    p.add_argument(
+        "--photos",
+        type=float,
+        default=0.0,
+        help="share of the rendered surfaces and decals wearing real photographs (training/real_textures.py); 0: procedural textures only (tried at 0.5, fine-tuning, not shipped: CHANGELOG)",
+    )
     p.add_argument(
         "--photometric",
         action=argparse.BooleanOptionalAction,
-        default=True,
-        help="photometric augmentation of every batch: gamma, blur, noise, vignetting (training/photometric.py, its default strengths)",
+        default=False,
+        help="photometric augmentation of every batch: gamma, blur, noise, vignetting, an illumination ramp (training/photometric.py, its default strengths; tried, not shipped: CHANGELOG)",
     )
     p.add_argument(
         "--clahe", action=argparse.BooleanOptionalAction, default=False, help="input preparation: CLAHE (clip 2, 8x8 tiles) before the area average, in training and (through the contract) at run time"
