@@ -5,7 +5,8 @@
 
 `--validation` renders other random layouts (seed 1) and skips the real pairs: settings
 are chosen there, never on the held-out frames or the real pairs reported in
-docs/results/segmenter.md.
+docs/results/segmenter.md. `--photos P` (with `--validation`) dresses that share of their
+surfaces in real photographs (training/real_textures.py; needs scikit-image).
 
 1. Held-out rendered frames: random room layouts from seed 0 (training uses seeds from
    1000 on) and frames of the built-in scenes (room, corridor, boxes; never trained on),
@@ -152,9 +153,14 @@ def rendered_frames(args: argparse.Namespace):
     from backend.data.scenes import builtin_scene
     from backend.data.synthetic import CAMERA, SequenceSettings, SyntheticSequence
 
+    photos = args.photos if args.validation else 0.0
+    if photos > 0:
+        from real_textures import register_photo_textures
+
+        register_photo_textures()
     rng = np.random.default_rng([1 if args.validation else 0, 0x5E6])
     for k in range(args.layouts):
-        scene = random_room(rng, f"held-out-{k}")
+        scene = random_room(rng, f"held-out-{k}", photos=photos)
         for _ in range(args.views):
             R, t = random_pose(rng, scene)
             view = render_view(scene, CAMERA, R, t, gain=float(rng.uniform(0.55, 1.45)), blur_sigma_px=float(rng.uniform(0, 1.5)), noise_sigma=float(rng.uniform(0, 6)), rng=rng)
@@ -196,6 +202,7 @@ def main() -> int:
     parser.add_argument("--normal-weight", type=float, default=None, help="mean shift's normal weight (default: the contract's)")
     parser.add_argument("--bandwidth", type=float, default=None, help="mean shift's bandwidth (default: the contract's)")
     parser.add_argument("--validation", action="store_true", help="validation layouts (seed 1) only; no real pairs, no gallery")
+    parser.add_argument("--photos", type=float, default=0.0, help="with --validation: share of surfaces wearing real photographs (0-1)")
     args = parser.parse_args()
     if args.validation:
         args.no_doc = True

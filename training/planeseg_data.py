@@ -4,6 +4,9 @@ the runtime package).
 Rendered samples: random room layouts (size, textures, decals on the walls, boxes, a table,
 non-planar spheres and cylinders) seen from random poses inside, with random exposure,
 blur and noise; grey images like EuRoC's, and the renderer's exact plane-instance ids.
+With `photos` > 0, that share of the surfaces and decals wears real photographs
+(`real_textures.py`: scikit-image's bundled brick, grass, gravel, ... and pictures)
+instead of the procedural textures.
 Real samples: frames of the EuRoC MH_01 slice in `../shared/data/` with pseudo-labels from
 the geometric (stereo) segmenter, its instances only where they are large (confident);
 the rest of such an image is left out of the loss.
@@ -21,6 +24,7 @@ import dataclasses
 import pathlib
 
 import numpy as np
+from real_textures import picture_kinds, register_photo_textures, surface_kinds
 
 from backend.data.render import NON_PLANAR_ID, render_view
 from backend.data.scenes import Cylinder, Scene, Sphere, Texture, box_rectangles, facing_rectangle
@@ -32,6 +36,8 @@ OUTPUT_W, OUTPUT_H = 96, 64  # network output (half the input)
 NON_PLANAR = -1
 IGNORE = -2
 WALL_KINDS = ("tiles", "panels", "plaster", "checker", "poster")
+PHOTO_SURFACES = surface_kinds()  # texture kinds of real photographs (registered on use)
+PHOTO_PICTURES = picture_kinds()
 _Z = np.array([0.0, 0.0, 1.0])
 
 
@@ -82,15 +88,28 @@ def camera_normals(scene: Scene, R_world_camera: np.ndarray, t_world_camera: np.
     return out
 
 
-def random_room(rng: np.random.Generator, name: str, *, leaning: bool = False) -> Scene:
+def random_room(rng: np.random.Generator, name: str, *, leaning: bool = False, photos: float = 0.0) -> Scene:
     """A random box-shaped room with decals on the walls and patches on the floor, boxes,
     maybe a table, and non-planar clutter;
     three in ten are open (no ceiling, one to three walls missing). With `leaning`, half
     the rooms also get one to three panels leaning against a wall at 55–80° from the
-    floor (like the padded mats of EuRoC's Vicon room), each its own plane."""
+    floor (like the padded mats of EuRoC's Vicon room), each its own plane. With `photos`
+    (a probability, 0–1), each surface and decal wears a real photograph with that
+    probability (`real_textures.register_photo_textures` must have run); at 0 the random
+    draws, and so the layouts, are those of the procedural rooms."""
     X, Y, H = rng.uniform(1.8, 4.5), rng.uniform(1.8, 4.5), rng.uniform(2.3, 3.6)
     seed = int(rng.integers(1 << 30))
-    kind = lambda: str(rng.choice(WALL_KINDS))  # noqa: E731
+
+    def kind() -> str:
+        if photos > 0 and rng.random() < photos:
+            return str(rng.choice(PHOTO_SURFACES))
+        return str(rng.choice(WALL_KINDS))
+
+    def decal(kinds: tuple[str, ...]) -> str:
+        if photos > 0 and rng.random() < photos:
+            return str(rng.choice(PHOTO_PICTURES + PHOTO_SURFACES))
+        return str(rng.choice(kinds))
+
     tex = lambda k: Texture(kind(), seed + k, float(rng.uniform(0.004, 0.012)))  # noqa: E731
     rects = [
         facing_rectangle(np.array([0, 0, 0.0]), _Z, (2 * X, 2 * Y), tex(0), 0),
@@ -116,11 +135,11 @@ def random_room(rng: np.random.Generator, name: str, *, leaning: bool = False) -
         along = np.cross(_Z, n)
         w, h = rng.uniform(0.4, 1.4), rng.uniform(0.4, 2.0)
         c = base + along * rng.uniform(-half + w, half - w) + _Z * rng.uniform(h / 2 + 0.1, H - h / 2 - 0.1) - n * 0.0
-        rects.append(facing_rectangle(c, n, (w, h), Texture(str(rng.choice(("poster", "door"))), seed + 100 + k), pid))
+        rects.append(facing_rectangle(c, n, (w, h), Texture(decal(("poster", "door")), seed + 100 + k), pid))
     for k in range(int(rng.integers(0, 9))):  # patches on the floor (mats, markers, carpet patterns) share its plane id
         w, h = rng.uniform(0.15, 1.2, 2)
         c = np.array([rng.uniform(-X + w, X - w), rng.uniform(-Y + h, Y - h), 0.0])
-        rects.append(facing_rectangle(c, _Z, (w, h), Texture(str(rng.choice(("poster", "checker", "tiles", "panels"))), seed + 300 + k, float(rng.uniform(0.003, 0.01))), 0))
+        rects.append(facing_rectangle(c, _Z, (w, h), Texture(decal(("poster", "checker", "tiles", "panels")), seed + 300 + k, float(rng.uniform(0.003, 0.01))), 0))
     next_id = 6
     if rng.random() < 0.5:  # a table top
         c = np.array([rng.uniform(-X + 1, X - 1), rng.uniform(-Y + 1, Y - 1), rng.uniform(0.6, 0.9)])
@@ -179,13 +198,15 @@ def random_pose(rng: np.random.Generator, scene: Scene) -> tuple[np.ndarray, np.
     return np.stack([r, d, f], axis=1), t
 
 
-def rendered_samples(seed: int, *, layouts: int, views_per_layout: int, leaning: bool = False) -> list[Sample]:
+def rendered_samples(seed: int, *, layouts: int, views_per_layout: int, leaning: bool = False, photos: float = 0.0) -> list[Sample]:
     """Samples of `layouts` random rooms drawn from `seed` (disjoint seeds: disjoint layouts);
-    `leaning`: see `random_room`."""
+    `leaning`, `photos`: see `random_room` (`photos` > 0 registers the photographs)."""
+    if photos > 0:
+        register_photo_textures()
     rng = np.random.default_rng([seed, 0x5E6])
     out = []
     for k in range(layouts):
-        scene = random_room(rng, f"random-{seed}-{k}", leaning=leaning)
+        scene = random_room(rng, f"random-{seed}-{k}", leaning=leaning, photos=photos)
         for _ in range(views_per_layout):
             R, t = random_pose(rng, scene)
             view = render_view(scene, CAMERA, R, t, gain=float(rng.uniform(0.55, 1.45)), blur_sigma_px=float(rng.uniform(0, 1.5)), noise_sigma=float(rng.uniform(0, 6)), rng=rng)

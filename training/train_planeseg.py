@@ -1,6 +1,6 @@
 """Train the plane-instance segmenter and export it as ONNX with its contract (JSON).
 
-    .venv/bin/pip install -e .[train]      # PyTorch (CPU) and onnx: training only
+    .venv/bin/pip install -e .[train]      # PyTorch (CPU), onnx and scikit-image: training only
     .venv/bin/python training/train_planeseg.py                 # writes assets/planeseg.onnx and .json
 
 The same seed gives the same weights on the same machine and library versions (data,
@@ -12,6 +12,7 @@ evaluation (scripts/planeseg_eval.py) renders layouts from seed 0, never trained
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import os
@@ -25,17 +26,18 @@ sys.path.insert(0, str(ROOT / "training"))
 
 import numpy as np
 import planeseg_data
+from photometric import Photometric, augment
 from planeseg_data import INPUT_H, INPUT_W, OUTPUT_H, OUTPUT_W, Sample, real_samples, rendered_samples
 
 TRAIN_SEED_BASE = 1000
-DEFAULT_REAL = ROOT.parent / "shared" / "data" / "euroc_mh01_slice"
+DEFAULT_REAL = ROOT.parent / "shared" / "data" / "euroc_mh01_slice"  # the shipped model's; ../shared/data/euroc_mh01_vio holds its 300 frames and 100 more
 
 
 def build_data(args: argparse.Namespace) -> list[Sample]:
     t0 = time.perf_counter()
     samples: list[Sample] = []
     for chunk in range(args.layouts // 25):
-        samples += rendered_samples(TRAIN_SEED_BASE + args.seed * 100 + chunk, layouts=25, views_per_layout=args.views, leaning=args.leaning)
+        samples += rendered_samples(TRAIN_SEED_BASE + args.seed * 100 + chunk, layouts=25, views_per_layout=args.views, leaning=args.leaning, photos=args.photos)
         print(f"  rendered {len(samples)} samples ({time.perf_counter() - t0:.0f} s)", flush=True)
     if args.real is not None and args.real.is_dir():
         real = real_samples(args.real, every=args.real_every)
@@ -96,7 +98,19 @@ def main() -> int:
         default=False,
         help="rooms with panels leaning against the walls (see planeseg_data.random_room); tried once with --gamma 0.4, worse on held-out and real frames (README), so off by default",
     )
-    p.add_argument("--gamma", type=float, default=0.0, help="photometric augmentation: gamma drawn from exp(±gamma)")
+    p.add_argument("--gamma", type=float, default=0.0, help="an older gamma jitter after the brightness / contrast one: gamma drawn from exp(±gamma)")
+    p.add_argument(
+        "--photos",
+        type=float,
+        default=0.0,
+        help="share of the rendered surfaces and decals wearing real photographs (training/real_textures.py); 0: procedural textures only (tried at 0.5, fine-tuning, not shipped: CHANGELOG)",
+    )
+    p.add_argument(
+        "--photometric",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="photometric augmentation of every batch: gamma, blur, noise, vignetting, an illumination ramp (training/photometric.py, its default strengths; tried, not shipped: CHANGELOG)",
+    )
     p.add_argument(
         "--clahe", action=argparse.BooleanOptionalAction, default=False, help="input preparation: CLAHE (clip 2, 8x8 tiles) before the area average, in training and (through the contract) at run time"
     )
@@ -112,6 +126,12 @@ def main() -> int:
     p.add_argument("--pairs-repeat", type=int, default=25, help="copies of each --v101-pairs image in the training set")
     p.add_argument("--real-every", type=int, default=1)
     p.add_argument("--real-repeat", type=int, default=2)
+    p.add_argument(
+        "--init",
+        type=pathlib.Path,
+        default=None,
+        help="start from this exported model (.onnx of the same width and heads, training/warm_start.py) instead of random weights: fine-tuning",
+    )
     p.add_argument("--epochs", type=int, default=24)
     p.add_argument("--batch", type=int, default=16)
     p.add_argument("--lr", type=float, default=3e-3)
@@ -138,8 +158,17 @@ def main() -> int:
     t_data = time.perf_counter() - t_start
     print(f"{len(samples)} samples in {t_data:.0f} s; training on {args.device} with {args.threads} threads", flush=True)
 
+    photometric = Photometric() if args.photometric else None
     device = torch.device(args.device)
     model = PlaneNet(width=args.width, normals=args.normals).to(device)
+    init_sha256 = None
+    if args.init is not None:
+        from warm_start import warm_start
+
+        calibration = images[:: max(1, len(images) // 64)][:64].astype(np.float32)[:, None] / 255.0
+        warm_start(model, args.init, calibration)
+        init_sha256 = hashlib.sha256(args.init.read_bytes()).hexdigest()
+        print(f"started from {args.init} (sha256 {init_sha256[:12]})", flush=True)
     opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
     steps = args.epochs * (len(samples) // args.batch)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=steps, pct_start=0.15)
@@ -164,6 +193,8 @@ def main() -> int:
             x = np.clip(x * gain + bias, 0.0, 1.0)
             if args.gamma > 0:
                 x = x ** np.exp(rng.uniform(-args.gamma, args.gamma, (len(idx), 1, 1))).astype(np.float32)
+            if photometric is not None:
+                x = augment(x, rng, photometric)
             xt = torch.from_numpy(np.ascontiguousarray(x[:, None])).to(device)
             yt = torch.from_numpy(np.ascontiguousarray(y)).to(device)
             if normals is None:
@@ -191,10 +222,13 @@ def main() -> int:
         **({"v101_pairs": args.v101_pairs, "pairs_repeat": args.pairs_repeat} if args.v101_pairs else {}),
         "leaning": args.leaning,
         "gamma": args.gamma,
+        "photos": args.photos,
+        "photometric": dataclasses.asdict(photometric) if photometric else None,
         "clahe": planeseg_data.CLAHE,
         "views": args.views,
         "real": args.real.name if args.real and args.real.is_dir() else None,
         "samples": len(samples),
+        "init_sha256": init_sha256,
         "epochs": args.epochs,
         "batch": args.batch,
         "lr": args.lr,

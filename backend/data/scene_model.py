@@ -15,7 +15,7 @@ import numpy as np
 from backend.data.body_motion import Motion
 from backend.data.exposure import ExposureSchedule
 from backend.data.rigs import EUROC_RIG, Rig
-from backend.data.textures import DEFAULT_TEXEL_M, KINDS, texture_shape
+from backend.data.textures import DEFAULT_TEXEL_M, known_kinds, texture_shape
 
 _MAX_PLANE_ID = 32766  # plane masks are int16
 MAX_COORDINATE_M = 1e5  # scene coordinates (m): beyond, float32 rendering loses the centimetre
@@ -136,8 +136,8 @@ def _validate(scene: Scene) -> None:
             raise ValueError(f"{where}: u and v must be orthogonal")
         if not (len(rect.size) == 2 and all(math.isfinite(s) and s > 0 for s in rect.size)):
             raise ValueError(f"{where}.size: expected two positive extents (metres)")
-        if rect.texture.kind not in KINDS:
-            raise ValueError(f"{where}.texture.kind: unknown {rect.texture.kind!r} (known: {', '.join(KINDS)})")
+        if rect.texture.kind not in known_kinds():
+            raise ValueError(f"{where}.texture.kind: unknown {rect.texture.kind!r} (known: {', '.join(known_kinds())})")
         if not (rect.texture.texel_m > 0 and math.isfinite(rect.texture.texel_m)):
             raise ValueError(f"{where}.texture.texel_m: must be positive")
         if not 0 <= rect.plane_id <= _MAX_PLANE_ID:

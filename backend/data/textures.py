@@ -11,12 +11,17 @@ few low-contrast marks, just above the ORB detector's threshold.
 A texture is a pure function of `(kind, seed, height_px, width_px)`; `texture_image`
 caches the results. Texture size follows the surface: `texture_shape` gives about
 `texel_m` (5 mm) per texel, capped at `MAX_TEXTURE_PX` per side.
+
+Kinds made elsewhere can join for one process with `register_texture` (the segmenter's
+training data adds photographs this way, `training/real_textures.py`); `known_kinds()`
+lists them with the built-in `KINDS`.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import zlib
 from collections.abc import Callable
 
 import cv2
@@ -295,7 +300,10 @@ def faint(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
     return _finish(img, rng, grain=1.5)
 
 
-_GENERATORS: dict[str, Callable[[np.random.Generator, tuple[int, int]], np.ndarray]] = {
+TextureGenerator = Callable[[np.random.Generator, tuple[int, int]], np.ndarray]
+"""`(rng, (rows, cols))` -> a uint8 texture image of that shape."""
+
+_GENERATORS: dict[str, TextureGenerator] = {
     "tiles": tiles,
     "poster": poster,
     "panels": panels,
@@ -309,14 +317,34 @@ _GENERATORS: dict[str, Callable[[np.random.Generator, tuple[int, int]], np.ndarr
 }
 
 
+_REGISTERED: dict[str, TextureGenerator] = {}
+
+
+def register_texture(kind: str, generator: TextureGenerator) -> None:
+    """Adds (or replaces) the texture kind `kind`, made by `generator`, for this process
+    only: scenes using it are not portable. Built-in kinds cannot be replaced."""
+    if kind in _GENERATORS:
+        raise ValueError(f"{kind!r} is a built-in texture kind")
+    _REGISTERED[kind] = generator
+    texture_image.cache_clear()
+    texture_pyramid.cache_clear()
+
+
+def known_kinds() -> tuple[str, ...]:
+    """The built-in `KINDS`, then the kinds registered in this process."""
+    return KINDS + tuple(_REGISTERED)
+
+
 @functools.lru_cache(maxsize=256)
 def texture_image(kind: str, seed: int, rows: int, cols: int) -> np.ndarray:
     """The texture `kind` of size (rows, cols), uint8, deterministic per `seed`. Cached:
     the returned array is read-only."""
-    if kind not in _GENERATORS:
-        raise ValueError(f"unknown texture kind {kind!r} (known: {', '.join(KINDS)})")
-    rng = np.random.default_rng([seed, KINDS.index(kind), rows, cols])
-    img = _GENERATORS[kind](rng, (rows, cols))
+    generator = _GENERATORS.get(kind) or _REGISTERED.get(kind)
+    if generator is None:
+        raise ValueError(f"unknown texture kind {kind!r} (known: {', '.join(known_kinds())})")
+    kind_key = KINDS.index(kind) if kind in KINDS else zlib.crc32(kind.encode())
+    rng = np.random.default_rng([seed, kind_key, rows, cols])
+    img = generator(rng, (rows, cols))
     img.setflags(write=False)
     return img
 

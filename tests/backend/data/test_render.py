@@ -182,6 +182,23 @@ def test_rendering_and_textures_are_deterministic_per_seed(room: Scene, room_vie
         render.render_view(room, CAMERA, R_world_camera, t_world_camera, noise_sigma=1.0)
 
 
+def test_a_registered_texture_kind_is_rendered_and_built_ins_stay(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A kind made elsewhere (the segmenter's training photographs) joins for the process:
+    scenes with it pass validation and render with its image; built-ins cannot be replaced."""
+    monkeypatch.setattr(textures, "_REGISTERED", {})
+    stripes = lambda rng, shape: np.tile(np.where(np.arange(shape[1]) % 40 < 20, 30, 220).astype(np.uint8), (shape[0], 1))  # noqa: E731
+    with pytest.raises(ValueError, match="texture.kind"):
+        Scene(name="x", rectangles=(facing_rectangle(np.array([0.0, 0.0, 3.0]), np.array([0.0, 0.0, -1.0]), (4.0, 4.0), Texture("stripes", 0), 0),))
+    textures.register_texture("stripes", stripes)
+    assert textures.known_kinds() == (*textures.KINDS, "stripes")
+    wall = facing_rectangle(np.array([0.0, 0.0, 3.0]), np.array([0.0, 0.0, -1.0]), (40.0, 40.0), Texture("stripes", 0), 0)
+    view = render.render_view(Scene(name="x", rectangles=(wall,)), CAMERA, np.eye(3), np.zeros(3))
+    assert np.all(view.plane_id == 0) and view.image.min() < 60 and view.image.max() > 190
+    with pytest.raises(ValueError, match="built-in"):
+        textures.register_texture("tiles", stripes)
+    textures.texture_image.cache_clear()
+
+
 def test_orb_and_lsd_find_features_in_a_room_view(room_view) -> None:
     _, _, view = room_view
     keypoints = cv2.ORB_create(1000).detect(view.image, None)
