@@ -230,7 +230,7 @@ class PipelineCore:
         t0 = time.perf_counter()
         s = self.settings
         w0, _ = self.plan.window_range(k)
-        cull(self.map, k, w0, settings=CullSettings(s.outlier_px, s.min_depth_m, s.max_depth_m, s.cull_after_keyframes, s.min_keyframe_observations))
+        cull(self.map, k, w0, settings=CullSettings(s.outlier_px, s.min_depth_m, s.depth_limit_m(self.camera), s.cull_after_keyframes, s.min_keyframe_observations))  # VIO: max_depth_m (no far points)
         self.local_points, self.local_lines = local_map(self.map, k, w0)
         timing[Stage.CULLING] = 1e3 * (time.perf_counter() - t0)
         return masks, detection, report, hessian
