@@ -181,10 +181,13 @@ class PipelineCore:
         s = self.settings
         return TrackSettings(s.search_radius_px, s.refine_radius_px, s.max_hamming, s.match_ratio, s.min_tracking_inliers, s.pixel_sigma, s.cauchy, s.outlier_px, s.seed)
 
-    def track(self, i: int, kp: Keypoints, *, predicted: tuple[np.ndarray, np.ndarray]) -> Tracked:
-        """Frame i's pose against the local map from the `predicted` one (stages/track.py)."""
+    def track(self, i: int, kp: Keypoints, *, predicted: tuple[np.ndarray, np.ndarray], verify_below: int | None = None) -> Tracked:
+        """Frame i's pose against the local map from the `predicted` one (stages/track.py;
+        `verify_below`: fewer inliers than this and the PnP candidates are tried too, None:
+        the prediction's pose is trusted as it was before the stereo engine verified it)."""
         last = (self.frame_poses[-1][1], self.frame_poses[-1][2]) if len(self.frame_poses) == 2 else None  # (one frame: the prediction is its pose)
-        return track_frame(self.camera, self.track_settings(), i, kp, the_map=self.map, local_points=self.local_points, predicted=predicted, last_frame=last, messages=self.messages)
+        s = self.track_settings()
+        return track_frame(self.camera, s, i, kp, the_map=self.map, local_points=self.local_points, predicted=predicted, last_frame=last, messages=self.messages, verify_below=verify_below)
 
     def match_lines(self, R: np.ndarray, t: np.ndarray, ids: np.ndarray, segments: Segments) -> np.ndarray:
         s = self.settings

@@ -114,7 +114,7 @@ class StereoEngine(CoreEngine):
                 tracked = Tracked(R, t, np.full(0, -1, np.int64), 0, True)
                 reason = "first frame"
             else:
-                tracked = c.track(i, kp, predicted=c.constant_velocity(i))
+                tracked = c.track(i, kp, predicted=c.constant_velocity(i), verify_below=self._verify_below())
                 reason = self._keyframe_reason(i, kp, tracked)
             timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
             c.remember_frame(i, tracked.R, tracked.t)
@@ -135,6 +135,16 @@ class StereoEngine(CoreEngine):
         return self._keyframe(i, left, right, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, message="; ".join(messages), reason=reason)
 
     # ------------------------------------------------------------------ tracking
+
+    def _verify_below(self) -> int:
+        """The inliers below which the motion model's pose is checked against PnP (the
+        prediction is not trusted): all of them before the motion model has a velocity (the
+        first frame after a keyframe that starts a map segment), else
+        `verify_tracked_ratio` of the last keyframe's tracked points."""
+        c = self.core
+        if len(c.frame_poses) < 2:
+            return np.iinfo(np.int64).max
+        return int(np.ceil(self.settings.verify_tracked_ratio * c.last_kf_tracked))
 
     def _keyframe_reason(self, i: int, kp: Keypoints, tracked: Tracked) -> str:
         """Why frame i becomes a keyframe ("" if it does not)."""

@@ -114,9 +114,13 @@ def track_frame(
     predicted: tuple[np.ndarray, np.ndarray],
     last_frame: tuple[np.ndarray, np.ndarray] | None,
     messages: list[str],
+    verify_below: int | None = None,
 ) -> Tracked:
     """Pose of frame i against the local map, from the `predicted` pose; `last_frame`: the
     last frame's pose where a motion model made the prediction (None: it is that pose).
+    `verify_below`: a pose from the prediction with fewer inliers than this is not trusted
+    (far points alone can agree on a wrong translation): the PnP candidates, which need no
+    prediction, are tried too and the one with the most inliers wins (None: trusted).
     A candidate other than the prediction that wins says how in `messages`."""
     R, t = predicted
     ids = local_points
@@ -125,20 +129,25 @@ def track_frame(
     P, D = the_map.points.p_world[ids], the_map.points.desc[ids]
     match = match_by_projection(camera, R, t, P, D, kp.uv, kp.descriptors, radius_px=s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
     result = refine(camera, s, R, t, P, D, kp, match)
-    if result.ok:
+    if result.ok and (verify_below is None or result.inliers >= verify_below):
         return result
-    # The motion model failed (a sudden change of motion). Candidates: a three times
-    # wider search around the prediction, the same around the last frame's pose, and
-    # PnP-RANSAC on the last keyframe's points and on the whole local map by descriptor.
-    # The one with the most inliers wins: in repeated texture a wide search or a subset
-    # of the map can agree on a wrong pose with enough inliers to pass.
+    # The motion model failed (a sudden change of motion) or is not trusted. Candidates: a
+    # three times wider search around the prediction, the same around the last frame's
+    # pose (where the prediction failed), and PnP-RANSAC on the last keyframe's points and
+    # on the whole local map by descriptor (as ORB-SLAM's tracking of the reference
+    # keyframe and its relocalization). The one with the most inliers wins: in repeated
+    # texture a wide search or a subset of the map can agree on a wrong pose with enough
+    # inliers to pass.
     candidates: list[tuple[Tracked, str]] = []
-    priors = [(R, t, "")]
-    if last_frame is not None:
-        priors.append((last_frame[0], last_frame[1], "tracked from the last frame's pose (the motion model failed)"))
-    for R0, t0, how in priors:
-        match = match_by_projection(camera, R0, t0, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
-        candidates.append((refine(camera, s, R0, t0, P, D, kp, match), how))
+    if result.ok:
+        candidates.append((result, ""))
+    else:
+        priors = [(R, t, "")]
+        if last_frame is not None:
+            priors.append((last_frame[0], last_frame[1], "tracked from the last frame's pose (the motion model failed)"))
+        for R0, t0, how in priors:
+            match = match_by_projection(camera, R0, t0, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
+            candidates.append((refine(camera, s, R0, t0, P, D, kp, match), how))
     for what, subset in (("the last keyframe", last_keyframe_points(the_map, ids)), ("the local map", np.arange(len(ids)))):
         if len(subset) < s.min_tracking_inliers:
             continue
