@@ -179,7 +179,7 @@ class PipelineCore:
 
     def track_settings(self) -> TrackSettings:
         s = self.settings
-        return TrackSettings(s.search_radius_px, s.refine_radius_px, s.max_hamming, s.match_ratio, s.min_tracking_inliers, s.pixel_sigma, s.cauchy, s.outlier_px, s.seed)
+        return TrackSettings(s.search_radius_px, s.refine_radius_px, s.max_hamming, s.match_ratio, s.min_tracking_inliers, s.pixel_sigma, s.cauchy, s.outlier_px, s.seed, s.verify_agreement)
 
     def track(self, i: int, kp: Keypoints, *, predicted: tuple[np.ndarray, np.ndarray], verify_below: int | None = None) -> Tracked:
         """Frame i's pose against the local map from the `predicted` one (stages/track.py;

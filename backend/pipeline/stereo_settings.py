@@ -33,7 +33,8 @@ class StereoSettings:
     needs `min_tracking_inliers` inliers; a pose from the motion model with fewer inliers
     than `verify_tracked_ratio` times the last keyframe's tracked points (or before the
     model has a velocity) is checked against PnP on descriptor matches (no prediction
-    needed), and the pose with more inliers wins. Landmarks: stereo depth in [`min_depth_m`,
+    needed): it stands where it places at least `verify_agreement` of the PnP pose's
+    inliers within `outlier_px` (they agree), else the pose with more inliers wins. Landmarks: stereo depth in [`min_depth_m`,
     `max_depth_m`] (close points), or beyond while the disparity is at least
     `far_min_disparity_px` (far points, as ORB-SLAM's beyond 40 baselines: their inverse
     depth stays uncertain in the window, where the right image's observation weighs it, and
@@ -65,6 +66,7 @@ class StereoSettings:
     match_ratio: float = 0.9
     min_tracking_inliers: int = 20
     verify_tracked_ratio: float = 0.6
+    verify_agreement: float = 0.8
     min_depth_m: float = 0.2
     max_depth_m: float = 20.0
     far_min_disparity_px: float | None = 3.0

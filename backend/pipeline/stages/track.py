@@ -34,7 +34,11 @@ class TrackSettings:
     """Projection search radius `search_radius_px` (then `refine_radius_px` around the
     refined pose), ORB Hamming distance `<= max_hamming` and ratio `match_ratio`; a pose needs
     `min_tracking_inliers` inliers; the refinement's `pixel_sigma` and Cauchy width `cauchy`
-    (px); matches off by more than `outlier_px` after it are dropped; `seed` for the RANSACs."""
+    (px); matches off by more than `outlier_px` after it are dropped; `seed` for the RANSACs.
+    `verify_agreement`: a pose from the prediction that is being verified stays when it
+    places at least this fraction of the best other candidate's inliers within
+    `outlier_px` (the two agree; a wrong translation that far points alone accept places
+    the near points far off)."""
 
     search_radius_px: float
     refine_radius_px: float
@@ -45,6 +49,7 @@ class TrackSettings:
     cauchy: float
     outlier_px: float
     seed: int
+    verify_agreement: float = 0.8
 
 
 def extrapolate(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray, steps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -159,10 +164,23 @@ def track_frame(
     good = [c for c in candidates if c[0].ok]
     if good:
         best, how = max(good, key=lambda c: c[0].inliers)
+        if result.ok and best is not result and agrees(camera, result, best, P, kp, outlier_px=s.outlier_px, fraction=s.verify_agreement):
+            return result  # verified: the prediction's pose and matches stand
         if how:
             messages.append(f"frame {i}: {how}")
         return best
     return Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
+
+
+def agrees(camera: PinholeCamera, pose: Tracked, other: Tracked, P: np.ndarray, kp: Keypoints, *, outlier_px: float, fraction: float) -> bool:
+    """Whether `pose` places at least `fraction` of `other`'s matched map points `P` (world,
+    one row per local map point) within `outlier_px` pixels of their keypoints in `kp`
+    (False when `other` has no matches)."""
+    m = np.flatnonzero(other.match >= 0)
+    if len(m) == 0:
+        return False
+    err = pixel_errors(camera, pose.R, pose.t, P[m], kp.uv[other.match[m]])
+    return bool(np.mean(err < outlier_px) >= fraction)
 
 
 def kept_in_view_next(
