@@ -137,3 +137,22 @@ def test_tracking_without_map_points_is_lost_not_a_crash() -> None:
     few = c.local_points[:5]
     tracked = track_frame(c.camera, c.track_settings(), 3, kp, the_map=c.map, local_points=few, predicted=(T[:3, :3], T[:3, 3]), last_frame=None, messages=[], verify_below=10**9)
     assert not tracked.ok or len(tracked.match) == 5
+
+
+def test_agreement_of_two_poses_counts_the_other_pose_inliers() -> None:
+    from backend.frontend.points import Keypoints
+    from backend.pipeline.stages.track import Tracked, agrees
+
+    cam = PinholeCamera(fx=718.75, fy=718.75, cx=607.25, cy=185.25, width=1241, height=376, baseline=0.54)
+    rng = np.random.default_rng(0)
+    near = np.column_stack([rng.uniform(-4, 4, 30), rng.uniform(-1, 1, 30), rng.uniform(8, 15, 30)])
+    far = np.column_stack([rng.uniform(-40, 40, 30), rng.uniform(-5, 5, 30), rng.uniform(80, 120, 30)])
+    P = np.concatenate([near, far])  # world = the true camera's frame
+    kp = Keypoints(uv=cam.project(P), descriptors=np.zeros((60, 32), np.uint8), octave=np.zeros(60, np.int32))
+    truth = Tracked(np.eye(3), np.zeros(3), np.arange(60), 60, True)
+    nudged = Tracked(so3.exp(np.array([0.0, 1e-4, 0.0])), np.array([0.01, 0.0, 0.0]), np.arange(60), 60, True)
+    stationary = Tracked(np.eye(3), np.array([0.0, 0.0, -3.0]), np.arange(60), 30, True)  # 3 m behind: only the far points fit
+    assert agrees(cam, nudged, truth, P, kp, outlier_px=4.0, fraction=0.8)
+    assert not agrees(cam, stationary, truth, P, kp, outlier_px=4.0, fraction=0.8)
+    nothing = Tracked(np.eye(3), np.zeros(3), np.full(60, -1), 0, False)
+    assert not agrees(cam, truth, nothing, P, kp, outlier_px=4.0, fraction=0.8)  # no matches: no agreement, no crash
