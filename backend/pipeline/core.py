@@ -179,12 +179,15 @@ class PipelineCore:
 
     def track_settings(self) -> TrackSettings:
         s = self.settings
-        return TrackSettings(s.search_radius_px, s.refine_radius_px, s.max_hamming, s.match_ratio, s.min_tracking_inliers, s.pixel_sigma, s.cauchy, s.outlier_px, s.seed)
+        return TrackSettings(s.search_radius_px, s.refine_radius_px, s.max_hamming, s.match_ratio, s.min_tracking_inliers, s.pixel_sigma, s.cauchy, s.outlier_px, s.seed, s.verify_agreement)
 
-    def track(self, i: int, kp: Keypoints, *, predicted: tuple[np.ndarray, np.ndarray]) -> Tracked:
-        """Frame i's pose against the local map from the `predicted` one (stages/track.py)."""
+    def track(self, i: int, kp: Keypoints, *, predicted: tuple[np.ndarray, np.ndarray], verify_below: int | None = None) -> Tracked:
+        """Frame i's pose against the local map from the `predicted` one (stages/track.py;
+        `verify_below`: fewer inliers than this and the PnP candidates are tried too, None:
+        the prediction's pose is trusted as it was before the stereo engine verified it)."""
         last = (self.frame_poses[-1][1], self.frame_poses[-1][2]) if len(self.frame_poses) == 2 else None  # (one frame: the prediction is its pose)
-        return track_frame(self.camera, self.track_settings(), i, kp, the_map=self.map, local_points=self.local_points, predicted=predicted, last_frame=last, messages=self.messages)
+        s = self.track_settings()
+        return track_frame(self.camera, s, i, kp, the_map=self.map, local_points=self.local_points, predicted=predicted, last_frame=last, messages=self.messages, verify_below=verify_below)
 
     def match_lines(self, R: np.ndarray, t: np.ndarray, ids: np.ndarray, segments: Segments) -> np.ndarray:
         s = self.settings
@@ -230,7 +233,7 @@ class PipelineCore:
         t0 = time.perf_counter()
         s = self.settings
         w0, _ = self.plan.window_range(k)
-        cull(self.map, k, w0, settings=CullSettings(s.outlier_px, s.min_depth_m, s.max_depth_m, s.cull_after_keyframes, s.min_keyframe_observations))
+        cull(self.map, k, w0, settings=CullSettings(s.outlier_px, s.min_depth_m, s.depth_limit_m(self.camera), s.cull_after_keyframes, s.min_keyframe_observations))  # VIO: max_depth_m (no far points)
         self.local_points, self.local_lines = local_map(self.map, k, w0)
         timing[Stage.CULLING] = 1e3 * (time.perf_counter() - t0)
         return masks, detection, report, hessian

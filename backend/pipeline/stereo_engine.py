@@ -14,17 +14,19 @@ tried and the one with the most inliers wins: a three times wider search around 
 prediction, the same around the last frame's pose, and PnP-RANSAC on descriptor matches
 with the last keyframe's points and with the whole local map; when none has enough
 inliers, the frame is *lost* (its pose is the prediction). The paper's keyframe rule (at
-least 20 frames since the last keyframe, more than 40 tracked points, at least 10 % new
-keypoints) with a quality fallback (tracked points below a share of the last keyframe's)
-and a fast-motion rule (less than half of the tracked points would stay in view at the
-next frame's predicted pose).
+least 1 s since the last keyframe, the paper's 20 frames at 20 Hz, more than 40 tracked
+points, at least 10 % new keypoints) with a quality fallback (tracked points below a share
+of the last keyframe's: the scene changed; at least 0.1 s after it) and a fast-motion rule
+(less than half of the tracked points would stay in view at the next frame's predicted
+pose). Gaps are in seconds, counted in frames at the input's rate.
 
 Every keyframe:
 1. stereo matching of its ORB points (right image), LSD + LBD segments in both images,
    stereo-matched, and matched to the local map's lines by projection (line D&M);
 2. pose refinement against the matched points and lines (Cauchy);
 3. new landmarks from stereo for the features no map landmark claimed (points: depth from
-   the disparity; lines: the two triangulated endpoints);
+   the disparity, close ones up to `max_depth_m` and far ones beyond while the disparity
+   is at least `far_min_disparity_px`; lines: the two triangulated endpoints, close only);
 4. plane-instance segmentation (plane seg.) and the co-planar detection (plane fitting):
    per instance, RANSAC with Eq. 4 over its triangulated features, θ_cp = 80 %, merging with
    existing planes; new landmarks tested against existing planes;
@@ -112,7 +114,7 @@ class StereoEngine(CoreEngine):
                 tracked = Tracked(R, t, np.full(0, -1, np.int64), 0, True)
                 reason = "first frame"
             else:
-                tracked = c.track(i, kp, predicted=c.constant_velocity(i))
+                tracked = c.track(i, kp, predicted=c.constant_velocity(i), verify_below=self._verify_below())
                 reason = self._keyframe_reason(i, kp, tracked)
             timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
             c.remember_frame(i, tracked.R, tracked.t)
@@ -134,17 +136,30 @@ class StereoEngine(CoreEngine):
 
     # ------------------------------------------------------------------ tracking
 
+    def _verify_below(self) -> int:
+        """The inliers below which the motion model's pose is checked against PnP (the
+        prediction is not trusted): all of them before the motion model has a velocity (the
+        first frame after a keyframe that starts a map segment), else
+        `verify_tracked_ratio` of the last keyframe's tracked points."""
+        c = self.core
+        if len(c.frame_poses) < 2:
+            return np.iinfo(np.int64).max
+        return int(np.ceil(self.settings.verify_tracked_ratio * c.last_kf_tracked))
+
     def _keyframe_reason(self, i: int, kp: Keypoints, tracked: Tracked) -> str:
         """Why frame i becomes a keyframe ("" if it does not)."""
         s = self.settings
         c = self.core
         if not tracked.ok:
             return ""
-        gap = i - int(c.map.keyframe_frame[-1])
+        last_kf = int(c.map.keyframe_frame[-1])
+        gap = i - last_kf
+        stamps = c.data_source.timestamps_ns
+        min_gap, min_fallback_gap = s.keyframe_gap_frames(1e-9 * float(stamps[i] - stamps[last_kf]) / max(gap, 1))  # the mean frame period since the keyframe
         new_fraction = 1.0 - tracked.inliers / max(len(kp.uv), 1)
-        if gap >= s.min_keyframe_gap and tracked.inliers > s.min_tracked_points and new_fraction >= s.min_new_fraction:
+        if gap >= min_gap and tracked.inliers > s.min_tracked_points and new_fraction >= s.min_new_fraction:
             return "rule"
-        if gap >= s.min_fallback_gap and tracked.inliers < s.fallback_tracked_ratio * c.last_kf_tracked:
+        if gap >= min_fallback_gap and tracked.inliers < s.fallback_tracked_ratio * c.last_kf_tracked:
             return "fallback"
         last = c.frame_poses[-1] if c.frame_poses else None
         if kept_in_view_next(c.camera, s.min_depth_m, i, tracked, last_frame=last, the_map=c.map, local_points=c.local_points) < s.min_kept_in_view:
@@ -253,7 +268,7 @@ class StereoEngine(CoreEngine):
         P, Lm = c.map.points, c.map.lines
         tracked_ids, j, claimed = P.reobserve(local_p, p_match, kp.descriptors, n_features=len(kp.uv))
         z = stereo.p_cam[:, 2]
-        fresh = np.flatnonzero(~claimed & stereo.matched & (z > s.min_depth_m) & (z < s.max_depth_m))
+        fresh = np.flatnonzero(~claimed & stereo.matched & (z > s.min_depth_m) & (z < s.depth_limit_m(c.camera)))  # close and far points
         c.new_point_kp = fresh
         new_points = P.add(
             p_world=stereo.p_cam[fresh] @ R.T + t,

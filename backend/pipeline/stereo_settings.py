@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from backend.frontend.lines import LineSettings
 from backend.frontend.points import PointSettings
+from backend.geometry.camera import PinholeCamera
 from backend.mapping import coplanar
 from backend.optim.variant import Variant
 
@@ -16,17 +19,27 @@ from backend.optim.variant import Variant
 class StereoSettings:
     """Settings of the stereo pipeline (all thresholds of DESIGN §5).
 
-    Keyframes: the paper's rule, at least `min_keyframe_gap` frames since the last keyframe,
-    more than `min_tracked_points` tracked points and at least `min_new_fraction` of the
-    keypoints new; or the fallback, after at least `min_fallback_gap` frames, fewer tracked
-    points than `fallback_tracked_ratio` times the last keyframe's map points; or, under
+    Keyframes: the paper's rule, at least `min_keyframe_gap_s` seconds since the last
+    keyframe (the paper's 20 frames at 20 Hz), more than `min_tracked_points` tracked points
+    and at least `min_new_fraction` of the keypoints new; or the fallback, after at least
+    `min_fallback_gap_s` seconds, fewer tracked points than `fallback_tracked_ratio` times
+    the last keyframe's map points (the scene changed); both gaps are turned into frames at
+    the input's frame rate (`keyframe_gap_frames`, at least one frame); or, under
     fast motion, when fewer than `min_kept_in_view` of the frame's tracked points would stay
     in the image at the pose the motion model predicts for the next frame (the next frame
     would see too little of the map to be tracked).
     Tracking: projection search radius `search_radius_px` (then `refine_radius_px` around the
     refined pose), ORB Hamming distance `<= max_hamming` and ratio `match_ratio`; a pose
-    needs `min_tracking_inliers` inliers. Landmarks: stereo depth in [`min_depth_m`,
-    `max_depth_m`]; segments at least `min_line_length_m` long; a landmark must be seen by
+    needs `min_tracking_inliers` inliers; a pose from the motion model with fewer inliers
+    than `verify_tracked_ratio` times the last keyframe's tracked points (or before the
+    model has a velocity) is checked against PnP on descriptor matches (no prediction
+    needed): it stands where it places at least `verify_agreement` of the PnP pose's
+    inliers within `outlier_px` (they agree), else the pose with more inliers wins. Landmarks: stereo depth in [`min_depth_m`,
+    `max_depth_m`] (close points), or beyond while the disparity is at least
+    `far_min_disparity_px` (far points, as ORB-SLAM's beyond 40 baselines: their inverse
+    depth stays uncertain in the window, where the right image's observation weighs it, and
+    they hold the rotation in tracking; None: no far points; `depth_limit_m` gives the depth
+    this allows; lines stay close); segments at least `min_line_length_m` long; a landmark must be seen by
     `min_keyframe_observations` keyframes within `cull_after_keyframes` keyframes of its
     creation. Window: `window` keyframes optimized, observations from `fixed_horizon` older
     keyframes enter with fixed poses; `cauchy` is the kernel scale (whitened units) and
@@ -41,10 +54,10 @@ class StereoSettings:
     variant: Variant = Variant.PL_W
     window: int = 10
     fixed_horizon: int = 10
-    min_keyframe_gap: int = 20
+    min_keyframe_gap_s: float = 1.0
     min_tracked_points: int = 40
     min_new_fraction: float = 0.1
-    min_fallback_gap: int = 2
+    min_fallback_gap_s: float = 0.1
     fallback_tracked_ratio: float = 0.6
     min_kept_in_view: float = 0.5
     search_radius_px: float = 15.0
@@ -52,8 +65,11 @@ class StereoSettings:
     max_hamming: int = 60
     match_ratio: float = 0.9
     min_tracking_inliers: int = 20
+    verify_tracked_ratio: float = 0.6
+    verify_agreement: float = 0.8
     min_depth_m: float = 0.2
     max_depth_m: float = 20.0
+    far_min_disparity_px: float | None = 3.0
     min_line_length_m: float = 0.1
     line_search_px: float = 20.0
     min_keyframe_observations: int = 2
@@ -76,3 +92,19 @@ class StereoSettings:
         object.__setattr__(self, "variant", Variant.parse(self.variant))  # a name given as text is parsed here, once
         if self.window < 2:
             raise ValueError("window must be at least 2 keyframes")
+        if self.far_min_disparity_px is not None and not self.far_min_disparity_px > 0.0:
+            raise ValueError("far_min_disparity_px must be positive (or None: no far points)")
+
+    def depth_limit_m(self, camera: PinholeCamera) -> float:
+        """The deepest landmark (metres) a stereo match of `camera`'s rig may make: `max_depth_m`,
+        or where far points are allowed the depth of `far_min_disparity_px` if that is
+        deeper (f·b / d; a camera without a baseline has none)."""
+        if self.far_min_disparity_px is None or camera.baseline <= 0.0:
+            return self.max_depth_m
+        return max(self.max_depth_m, camera.fx * camera.baseline / self.far_min_disparity_px)
+
+    def keyframe_gap_frames(self, frame_period_s: float) -> tuple[int, int]:
+        """`min_keyframe_gap_s` and `min_fallback_gap_s` in frames of `frame_period_s` seconds
+        (rounded, at least one; a period that is not positive and finite counts as 20 Hz's)."""
+        period = frame_period_s if np.isfinite(frame_period_s) and frame_period_s > 0.0 else 0.05
+        return max(1, round(self.min_keyframe_gap_s / period)), max(1, round(self.min_fallback_gap_s / period))

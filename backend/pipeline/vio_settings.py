@@ -36,7 +36,8 @@ class VioSettings(StereoSettings):
     drift (`rebias_accel`, `rebias_gyro`) beyond which a preintegration is redone. After the
     initialization a frame the images cannot track takes the IMU's predicted pose and becomes
     a keyframe, up to `max_imu_only_keyframes` in a row; `max_lost_frames` untracked frames in
-    a row start a new map segment.
+    a row start a new map segment. No far points (`far_min_disparity_px` None): the culling's
+    depth limit stays `max_depth_m`, as before the stereo pipeline had far points.
     Failure detection (VINS-Mono's, after each window solve once initialized): an
     accelerometer or gyroscope bias estimate above `failure_max_bias_accel` (m/s²) /
     `failure_max_bias_gyro` (rad/s), a speed above `failure_max_speed_mps`, a keyframe
@@ -49,6 +50,7 @@ class VioSettings(StereoSettings):
     window: int = 10
     fixed_horizon: int = 10  # before the initialization only; after it the prior replaces it
     min_keyframe_observations: int = 3  # a two-view point must be seen once more to stay
+    far_min_disparity_px: float | None = None  # VIO triangulates, it has no stereo depth
     keyframe_parallax_px: float = 20.0
     max_keyframe_interval_s: float = 0.3
     epipolar_px: float = 2.0

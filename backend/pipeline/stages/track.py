@@ -34,7 +34,11 @@ class TrackSettings:
     """Projection search radius `search_radius_px` (then `refine_radius_px` around the
     refined pose), ORB Hamming distance `<= max_hamming` and ratio `match_ratio`; a pose needs
     `min_tracking_inliers` inliers; the refinement's `pixel_sigma` and Cauchy width `cauchy`
-    (px); matches off by more than `outlier_px` after it are dropped; `seed` for the RANSACs."""
+    (px); matches off by more than `outlier_px` after it are dropped; `seed` for the RANSACs.
+    `verify_agreement`: a pose from the prediction that is being verified stays when it
+    places at least this fraction of the best other candidate's inliers within
+    `outlier_px` (the two agree; a wrong translation that far points alone accept places
+    the near points far off)."""
 
     search_radius_px: float
     refine_radius_px: float
@@ -45,6 +49,7 @@ class TrackSettings:
     cauchy: float
     outlier_px: float
     seed: int
+    verify_agreement: float = 0.8
 
 
 def extrapolate(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray, steps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -114,9 +119,13 @@ def track_frame(
     predicted: tuple[np.ndarray, np.ndarray],
     last_frame: tuple[np.ndarray, np.ndarray] | None,
     messages: list[str],
+    verify_below: int | None = None,
 ) -> Tracked:
     """Pose of frame i against the local map, from the `predicted` pose; `last_frame`: the
     last frame's pose where a motion model made the prediction (None: it is that pose).
+    `verify_below`: a pose from the prediction with fewer inliers than this is not trusted
+    (far points alone can agree on a wrong translation): the PnP candidates, which need no
+    prediction, are tried too and the one with the most inliers wins (None: trusted).
     A candidate other than the prediction that wins says how in `messages`."""
     R, t = predicted
     ids = local_points
@@ -125,20 +134,25 @@ def track_frame(
     P, D = the_map.points.p_world[ids], the_map.points.desc[ids]
     match = match_by_projection(camera, R, t, P, D, kp.uv, kp.descriptors, radius_px=s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
     result = refine(camera, s, R, t, P, D, kp, match)
-    if result.ok:
+    if result.ok and (verify_below is None or result.inliers >= verify_below):
         return result
-    # The motion model failed (a sudden change of motion). Candidates: a three times
-    # wider search around the prediction, the same around the last frame's pose, and
-    # PnP-RANSAC on the last keyframe's points and on the whole local map by descriptor.
-    # The one with the most inliers wins: in repeated texture a wide search or a subset
-    # of the map can agree on a wrong pose with enough inliers to pass.
+    # The motion model failed (a sudden change of motion) or is not trusted. Candidates: a
+    # three times wider search around the prediction, the same around the last frame's
+    # pose (where the prediction failed), and PnP-RANSAC on the last keyframe's points and
+    # on the whole local map by descriptor (as ORB-SLAM's tracking of the reference
+    # keyframe and its relocalization). The one with the most inliers wins: in repeated
+    # texture a wide search or a subset of the map can agree on a wrong pose with enough
+    # inliers to pass.
     candidates: list[tuple[Tracked, str]] = []
-    priors = [(R, t, "")]
-    if last_frame is not None:
-        priors.append((last_frame[0], last_frame[1], "tracked from the last frame's pose (the motion model failed)"))
-    for R0, t0, how in priors:
-        match = match_by_projection(camera, R0, t0, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
-        candidates.append((refine(camera, s, R0, t0, P, D, kp, match), how))
+    if result.ok:
+        candidates.append((result, ""))
+    else:
+        priors = [(R, t, "")]
+        if last_frame is not None:
+            priors.append((last_frame[0], last_frame[1], "tracked from the last frame's pose (the motion model failed)"))
+        for R0, t0, how in priors:
+            match = match_by_projection(camera, R0, t0, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
+            candidates.append((refine(camera, s, R0, t0, P, D, kp, match), how))
     for what, subset in (("the last keyframe", last_keyframe_points(the_map, ids)), ("the local map", np.arange(len(ids)))):
         if len(subset) < s.min_tracking_inliers:
             continue
@@ -150,10 +164,23 @@ def track_frame(
     good = [c for c in candidates if c[0].ok]
     if good:
         best, how = max(good, key=lambda c: c[0].inliers)
+        if result.ok and best is not result and agrees(camera, result, best, P, kp, outlier_px=s.outlier_px, fraction=s.verify_agreement):
+            return result  # verified: the prediction's pose and matches stand
         if how:
             messages.append(f"frame {i}: {how}")
         return best
     return Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
+
+
+def agrees(camera: PinholeCamera, pose: Tracked, other: Tracked, P: np.ndarray, kp: Keypoints, *, outlier_px: float, fraction: float) -> bool:
+    """Whether `pose` places at least `fraction` of `other`'s matched map points `P` (world,
+    one row per local map point) within `outlier_px` pixels of their keypoints in `kp`
+    (False when `other` has no matches)."""
+    m = np.flatnonzero(other.match >= 0)
+    if len(m) == 0:
+        return False
+    err = pixel_errors(camera, pose.R, pose.t, P[m], kp.uv[other.match[m]])
+    return bool(np.mean(err < outlier_px) >= fraction)
 
 
 def kept_in_view_next(

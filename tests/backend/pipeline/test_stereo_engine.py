@@ -89,8 +89,10 @@ def test_room_trajectory_is_accurate_and_complete() -> None:
 def test_room_keyframes_follow_the_paper_rule_or_the_fallback() -> None:
     _, snapshots = _room_pl_w()
     gaps = [s.tracking.frames for s in snapshots[1:]]
-    assert min(gaps) >= StereoSettings().min_fallback_gap
-    assert max(gaps) <= StereoSettings().min_keyframe_gap
+    min_gap, min_fallback_gap = StereoSettings().keyframe_gap_frames(0.05)  # the room's 20 Hz
+    assert (min_gap, min_fallback_gap) == (20, 2)  # the paper's frame counts
+    assert min(gaps) >= min_fallback_gap
+    assert max(gaps) <= min_gap
 
 
 def test_room_planes_are_walls_floor_and_boxes() -> None:
