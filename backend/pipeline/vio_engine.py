@@ -363,7 +363,7 @@ class VioEngine(CoreEngine):
             self.start.try_initialize(k, StartContext(self.map, self.inertial, self.imu_model, self.inertial_source, self.settings, c.messages))
         elif k > self.start.keyframe and (failure := self._failure(k)):
             reinitializations += 1
-            c.messages.append(f"keyframe {k}: VIO failure ({failure}): starting again from keyframe {k - 1}'s pose (new map segment)")
+            c.messages.append(f"VIO failure ({failure}): starting again from keyframe {k - 1}'s pose (new map segment)")
             self._restart_pose = (self.map.R_world_keyframe[k - 1].copy(), self.map.t_world_keyframe[k - 1].copy())
             self._start_segment()
         c.follow_keyframe(i, k)
