@@ -126,7 +126,10 @@ def track_frame(
     `verify_below`: a pose from the prediction with fewer inliers than this is not trusted
     (far points alone can agree on a wrong translation): the PnP candidates, which need no
     prediction, are tried too and the one with the most inliers wins (None: trusted).
-    A candidate other than the prediction that wins says how in `messages`."""
+    A candidate other than the prediction that wins says how in `messages` where the
+    prediction failed; replacing a tracked but untrusted prediction is routine (every stereo
+    run's second frame, before the motion model has a velocity) and says nothing, so that a
+    run's output stays quiet."""
     R, t = predicted
     ids = local_points
     if len(ids) == 0 or len(kp.uv) == 0:
@@ -166,7 +169,7 @@ def track_frame(
         best, how = max(good, key=lambda c: c[0].inliers)
         if result.ok and best is not result and agrees(camera, result, best, P, kp, outlier_px=s.outlier_px, fraction=s.verify_agreement):
             return result  # verified: the prediction's pose and matches stand
-        if how:
+        if how and not result.ok:
             messages.append(f"frame {i}: {how}")
         return best
     return Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
