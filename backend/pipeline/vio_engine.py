@@ -164,9 +164,12 @@ class VioEngine(CoreEngine):
             if self._flow_tracks_on():
                 kp = self.follower.follow(left, kp, self.camera, R_prev_cur=self._R_flow)
             if self.keyframes == self.map.segment_start:
-                R, t = c.initial_pose(i) if self._restart_pose is None else self._restart_pose
-                self._restart_pose = None
-                tracked, reason = Tracked(R, t, np.full(0, -1, np.int64), 0, True), "first frame" if self.keyframes == 0 else "restart after a failure"
+                if self._restart_pose is None:
+                    (R, t), reason = c.initial_pose(i), "first frame"
+                else:
+                    (R, t), reason = self._restart_pose, "restart after a failure"
+                    self._restart_pose = None
+                tracked = Tracked(R, t, np.full(0, -1, np.int64), 0, True)
             elif self._bootstrapping:
                 bootstrap = self._bootstrap(i, kp, left)
                 if bootstrap is None:
@@ -453,8 +456,7 @@ class VioEngine(CoreEngine):
             jump = float(np.linalg.norm(self.map.t_world_keyframe[k] - self.map.t_world_keyframe[k - 1]))
             if jump > s.failure_max_speed_mps * dt + s.failure_max_jump_m:
                 return f"a jump of {jump:.2f} m in {dt:.2f} s"
-        if self._disagreeing_run >= s.failure_disagreeing_frames:
-            self._disagreeing_run = 0
+        if self._disagreeing_run >= s.failure_disagreeing_frames:  # the restart resets the count
             return f"{s.failure_disagreeing_frames} frames in a row tracked far from the IMU's prediction"
         return ""
 
