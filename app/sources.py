@@ -84,7 +84,7 @@ def add_source_arguments(p: argparse.ArgumentParser, *, duration_default: float)
     p.add_argument("--speed", type=float, default=None, metavar="F", help="rendered scenes: move along the same path F times faster (default 1)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the scene, its noise and the RANSACs (default 0)")
     p.add_argument("--mislabel", type=float, default=None, help="mc-a / mc-b only: fraction of features with a wrong plane-instance label (default 0.1)")
-    p.add_argument("--window", type=int, default=10, help="keyframes optimized per step (default 10)")
+    p.add_argument("--window", type=int, default=None, help="keyframes optimized per step (default 10 in stereo, 20 in VIO)")
     p.add_argument("--mode", choices=("stereo", "vio"), default="stereo", help="stereo SLAM (default) or monocular visual-inertial odometry (VIO: the left images and the IMU)")
     p.add_argument(
         "--segmenter",
@@ -143,7 +143,7 @@ def engine_config(args: argparse.Namespace, *, headless: bool) -> EngineConfig:
     for a bad value (before anything runs). `headless`: as :func:`build_engine`."""
     from app.errors import UsageError
 
-    if args.window < 2:
+    if args.window is not None and args.window < 2:
         raise UsageError(f"--window {args.window}: must be at least 2")
     if getattr(args, "history", 1) < 1:
         raise UsageError(f"--history {args.history}: must be at least 1")

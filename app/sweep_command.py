@@ -38,7 +38,7 @@ AXIS_OPTIONS = {
     "seeds": ("0-4|N,...", "seeds: numbers and ranges (default 0)"),
     "speeds": ("F,...", "rendered scenes: motion speeds (default 1)"),
     "strides": ("N,...", "rendered scenes: keep every N-th frame (default 1)"),
-    "windows": ("N,...", "keyframes optimized per step, as run's --window (default 10)"),
+    "windows": ("N,...", "keyframes optimized per step, as run's --window (default 10 in stereo, 20 in VIO)"),
     "duration": ("SECONDS", "rendered scenes: seconds of motion (default 30)"),
     "frames": ("N", "only the first N frames of every input (default all)"),
     "keyframes": ("N", "stop every run after N keyframes, as run's --keyframes (default: at the end)"),

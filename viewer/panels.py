@@ -93,7 +93,13 @@ def imu_markdown(s: Snapshot) -> str:
     rep = imu.report
     if imu.initialized:
         figures = [f"scale {_num(rep.get('scale', float('nan')), 3)}"]
-        for key, label, unit in (("gravity_error_deg", "gravity error", "°"), ("scale_error_pct", "scale error", " %"), ("bias_gyro_error_pct", "gyro bias error", " %")):
+        truth_figures = (
+            ("gravity_error_deg", "gravity error", "°"),
+            ("scale_error_pct", "alignment's scale error", " %"),
+            ("joint_scale_error_pct", "after the joint solve", " %"),
+            ("bias_gyro_error_pct", "gyro bias error", " %"),
+        )
+        for key, label, unit in truth_figures:
             if key in rep:
                 figures.append(f"{label} {_num(rep[key], 2)}{unit}")
         init = f"initialized at keyframe {imu.init_keyframe}: " + ", ".join(figures) + " (against the truth where known)\n\n"

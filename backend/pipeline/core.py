@@ -238,11 +238,13 @@ class PipelineCore:
         timing[Stage.CULLING] = 1e3 * (time.perf_counter() - t0)
         return masks, detection, report, hessian
 
-    def optimize(self, k: int, timing: dict[str, float]) -> tuple[OptimizationReport, HessianStructure | None]:
-        """The window of keyframe k solved with the current variant (the plan's range and extension)."""
+    def optimize(self, k: int, timing: dict[str, float], *, max_iterations: int | None = None) -> tuple[OptimizationReport, HessianStructure | None]:
+        """The window of keyframe k solved with the current variant (the plan's range and
+        extension), at most `max_iterations` iterations (None: the settings')."""
         s = self.settings
         w0, oldest = self.plan.window_range(k)
-        settings = SolveSettings(method=s.method, max_iterations=s.max_iterations, cauchy=s.cauchy, hessian=s.hessian, window=WindowSettings(s.min_depth_m, s.pixel_sigma, s.min_plane_support))
+        window = WindowSettings(s.min_depth_m, s.pixel_sigma, s.min_plane_support)
+        settings = SolveSettings(method=s.method, max_iterations=max_iterations or s.max_iterations, cauchy=s.cauchy, hessian=s.hessian, window=window)
         self.window, report, hessian = solve_window(self.map, k, self.variant, w0=w0, oldest=oldest, extension=self.plan.window_extension(), settings=settings, timing=timing)
         return report, hessian
 

@@ -64,6 +64,7 @@ class InertialState:
     prior: inertial.LinearPrior | None = None
     initialized: bool = False
     marginalized_before: int = 0
+    joint_from: int | None = None  # the start's joint solve: every keyframe from this one, nothing marginalized
 
     def add_keyframe(self, the_map: Map, k: int, model: ImuModel) -> None:
         """Velocity and biases of the new keyframe k (the IMU's prediction after the
@@ -78,14 +79,17 @@ class InertialState:
         if k > the_map.segment_start:
             self.factors[k - 1] = model.factor(the_map, k - 1, self.bias[k - 1])
 
-    def window_range(self, the_map: Map, k: int, *, window: int, fixed_horizon: int) -> tuple[int, int]:
+    def window_range(self, the_map: Map, k: int, *, window: int, init_window: int, fixed_horizon: int) -> tuple[int, int]:
         """The window [w0, k] and the first keyframe whose observations enter: before the
-        initialization older keyframes are held fixed (`fixed_horizon`); after it the prior
-        stands for everything before the window."""
-        w0 = max(the_map.segment_start, k - window + 1)
+        initialization the last `init_window` keyframes, older ones held fixed
+        (`fixed_horizon`); after it the last `window`, the prior standing for everything
+        before them; in the start's joint solve every keyframe from `joint_from`."""
+        if self.initialized and self.joint_from is not None:
+            return self.joint_from, self.joint_from
         if self.initialized:
-            w0 = max(w0, self.marginalized_before)
+            w0 = max(the_map.segment_start, k - window + 1, self.marginalized_before)
             return w0, w0
+        w0 = max(the_map.segment_start, k - max(window, init_window) + 1)
         return w0, max(the_map.segment_start, w0 - fixed_horizon)
 
 
@@ -192,8 +196,9 @@ class InertialWindow:
             if free[j]:
                 st.velocity[k] = state.velocity[j].copy()
                 st.bias[k] = state.bias[j].copy()
-        # Slide: when the window is full, marginalize its oldest keyframe and its landmarks.
-        if len(window.kf) >= self.settings.window:
+        # Slide: when the window is full, marginalize its oldest keyframe and its landmarks
+        # (not in the start's joint solve: the start sets the next window's prior).
+        if len(window.kf) >= self.settings.window and st.joint_from is None:
             oldest = int(window.kf[0])
             p_local = np.flatnonzero(self.map.points.anchor[window.points] == oldest)
             l_local = np.flatnonzero(self.map.lines.anchor[window.lines] == oldest)

@@ -17,15 +17,17 @@ What differs from stereo:
   until the IMU gives the scale), unless its rotation disagrees with the gyroscope's by more
   than `init_gyro_agreement_deg` plus `init_gyro_bias_bound_rad_s` times the interval (the
   unknown gyro bias): then too little translation separates it from the rotation, and the
-  start waits for more parallax. Visual-only windows follow (the first keyframe held, the
-  distance of the first two fixing the scale). Until the initialization (`flow_tracks`) the
+  start waits for more parallax. Visual-only windows of `init_window` keyframes follow (the
+  first keyframe held, the distance of the first two fixing the scale). Until the initialization (`flow_tracks`) the
   map points seen in the last frame and up to `flow_max_tracks` candidate features of the
   recent keyframes are followed the same way, as VINS-Mono's front end: a frame's pose is
   EPnP-RANSAC on the followed map points, refined with them and the projection search's
   matches for the others; a candidate becomes a point when it has the parallax against the
   keyframe that detected it (at most `flow_max_age_keyframes` back).
 - **Initialization** (`backend.vio.alignment`, VINS-Mono's loosely coupled alignment): once
-  `init_keyframes` keyframes span at least `init_min_span_s`, the gyroscope bias, gravity,
+  `init_keyframes` keyframes span at least `init_min_span_s`, over the visual window's
+  keyframes thinned to `init_alignment_interval_s` apart (positions differenced over 0.2 s
+  carry the visual noise into the accelerations and shrink the scale), the gyroscope bias, gravity,
   the scale, the velocities and (under a prior) the accelerometer bias are estimated; the
   map is scaled and rotated into a gravity-aligned world (yaw and position of the first
   keyframe from the ground truth where it is known, only to draw both in the same frame; after
@@ -363,7 +365,14 @@ class VioEngine(CoreEngine):
         images = (left, left) if use_planes and k > self.map.segment_start else None
         masks, detection, report, hessian = c.detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=images)
         if not self.inertial.initialized:
-            self.start.try_initialize(k, StartContext(self.map, self.inertial, self.imu_model, self.inertial_source, self.settings, c.messages))
+            start = StartContext(self.map, self.inertial, self.imu_model, self.inertial_source, self.settings, c.messages)
+            self.start.try_initialize(k, start)
+            if self.inertial.initialized:
+                # A visual-inertial bundle adjustment over every aligned keyframe (ORB-SLAM3's
+                # after its inertial-only start): the alignment treats the visual positions as
+                # exact, the joint solve weighs their pixels and the IMU together.
+                report, hessian = c.optimize(k, timing, max_iterations=s.init_joint_iterations)
+                self.start.narrow(start)
         elif k > self.start.keyframe and (failure := self._failure(k)):
             reinitializations += 1
             c.messages.append(f"VIO failure ({failure}): starting again from keyframe {k - 1}'s pose (new map segment)")
@@ -507,7 +516,8 @@ class VioEngine(CoreEngine):
     # ------------------------------------------------------------------ the window plan (core.WindowPlan)
 
     def window_range(self, k: int) -> tuple[int, int]:
-        return self.inertial.window_range(self.map, k, window=self.settings.window, fixed_horizon=self.settings.fixed_horizon)
+        s = self.settings
+        return self.inertial.window_range(self.map, k, window=s.window, init_window=s.init_window, fixed_horizon=s.fixed_horizon)
 
     def window_extension(self) -> WindowExtension:
         s = self.settings

@@ -27,8 +27,15 @@ class VioSettings(StereoSettings):
     (at most `flow_max_tracks`, `flow_min_distance_px` apart, for `flow_max_age_keyframes`,
     triangulated with `min_parallax_deg`), and a frame is tracked with `flow_min_tracking_inliers`
     followed map points (forward-backward checked, then EPnP-RANSAC: fewer suffice than for
-    descriptor matches); initialization after `init_keyframes` keyframes spanning
-    `init_min_span_s` (`alignment`: its acceptance; the scale may be 15 % uncertain, the
+    descriptor matches); the last `init_window` keyframes are optimized together before the
+    initialization (a shorter window let the monocular scale drift by half within 4 s at a
+    slow pace), and `window` after it (IMU factors over ~6 s hold the scale of a slow
+    camera); initialization after `init_keyframes` keyframes spanning
+    `init_min_span_s`, aligned over the visual window's keyframes at least
+    `init_alignment_interval_s` apart (fewer where the span holds fewer than
+    `init_keyframes`: `vio_start.thinned`), then a visual-inertial bundle adjustment over
+    them of at most `init_joint_iterations` iterations (the alignment's scale may be tens of
+    per cent off: more than the windows' iterations correct) (`alignment`: its acceptance; the scale may be 15 % uncertain, the
     windows with IMU factors refine it; the accelerometer bias is estimated with a 0.2 m/s²
     prior: at 20 % the monocular structure's drift at a slow start passed scales 50-60 % off); the gauge prior's σ (`gauge_sigma_m`, `gauge_sigma_yaw_rad` for
     position and yaw, `gauge_sigma_tilt_rad` for roll and pitch) and the initial bias σ
@@ -47,7 +54,8 @@ class VioSettings(StereoSettings):
     `failure_prediction_deg` from the IMU's prediction: the inertial state is wrong, and the
     VIO starts again (a new map segment) from the last keyframe's pose rather than run on."""
 
-    window: int = 10
+    window: int = 20  # VIO's keyframes are denser than stereo's (backend.pipeline.factory.DEFAULT_WINDOW)
+    init_window: int = 40  # keyframes optimized together before the initialization (at least `window`)
     fixed_horizon: int = 10  # before the initialization only; after it the prior replaces it
     min_keyframe_observations: int = 3  # a two-view point must be seen once more to stay
     far_min_disparity_px: float | None = None  # VIO triangulates, it has no stereo depth
@@ -65,6 +73,8 @@ class VioSettings(StereoSettings):
     init_median_depth: float = 3.0
     init_keyframes: int = 8
     init_min_span_s: float = 1.0
+    init_alignment_interval_s: float = 0.5
+    init_joint_iterations: int = 40
     gauge_sigma_m: float = 1e-3
     gauge_sigma_yaw_rad: float = 1e-3
     gauge_sigma_tilt_rad: float = 0.02

@@ -1,8 +1,8 @@
 """The start of VIO: the visual-inertial alignment (VINS-Mono's loosely coupled
-initialization, `backend.vio.alignment`) over the first keyframes of a map segment, and what
-it changes when it succeeds: the segment's map scaled and rotated into a gravity-aligned
-world, velocities and the gyroscope bias, the preintegrations, and the gauge prior of the
-first window with IMU factors. The start's state says how far it got (the snapshots show it).
+initialization, `backend.vio.alignment`) over the keyframes of a map segment's visual window
+(`thinned` to a minimum interval), and what it changes when it succeeds: the segment's map
+scaled and rotated into a gravity-aligned world, velocities and the gyroscope bias, the
+preintegrations, and the gauge prior of the first window with IMU factors. The start's state says how far it got (the snapshots show it).
 
 Frames and units: world z up, metres, seconds; keyframe ids are the map's.
 """
@@ -33,6 +33,24 @@ def _yaw_between(R_target: np.ndarray, R: np.ndarray) -> np.ndarray:
     return so3.exp(np.array([0.0, 0.0, yaw]))
 
 
+def thinned(stamps_ns: np.ndarray, *, min_interval_s: float) -> np.ndarray:
+    """Indices of increasing `stamps_ns` (ns) kept for the alignment: the first, then each at
+    least `min_interval_s` after the last kept, and the newest (replacing the last kept when
+    it is nearer than that). Positions differenced over short intervals carry the visual
+    noise into the accelerations the scale is fitted to, which biases it towards zero."""
+    t = (np.asarray(stamps_ns, np.int64) - int(stamps_ns[0])) * 1e-9
+    keep = [0]
+    for i in range(1, len(t)):
+        if t[i] - t[keep[-1]] >= min_interval_s - 1e-9:
+            keep.append(i)
+    if keep[-1] != len(t) - 1:
+        if len(keep) > 1 and t[-1] - t[keep[-1]] < min_interval_s:
+            keep[-1] = len(t) - 1
+        else:
+            keep.append(len(t) - 1)
+    return np.array(keep, np.int64)
+
+
 @dataclasses.dataclass(frozen=True)
 class StartContext:
     """What one initialization attempt works on: the map, the inertial state, the IMU model,
@@ -58,25 +76,28 @@ class VioStart:
     first: tuple[int, dict] = (-1, {})
 
     def try_initialize(self, k: int, ctx: StartContext) -> None:
-        """Visual-inertial alignment over the segment's keyframes so far (module docstring)."""
+        """Visual-inertial alignment over the segment's last `init_window` keyframes, thinned
+        (module docstring); the keyframes between the aligned ones take their velocity from
+        the IMU."""
         s = ctx.settings
-        first = max(ctx.map.segment_start, k + 1 - 2 * s.window)
+        first = max(ctx.map.segment_start, k + 1 - max(s.window, s.init_window))
         kfs = np.arange(first, k + 1)
         n_kf = len(kfs)
         span = (int(ctx.map.keyframe_stamp_ns[k]) - int(ctx.map.keyframe_stamp_ns[first])) * 1e-9
         if n_kf < s.init_keyframes or span < s.init_min_span_s:
             self.status = f"structure from motion: {n_kf} keyframes over {span:.1f} s (alignment after {s.init_keyframes} keyframes over {s.init_min_span_s:.1f} s)"
             return
-        R_v, t_v = ctx.map.R_world_keyframe[kfs], ctx.map.t_world_keyframe[kfs]
+        used = thinned(ctx.map.keyframe_stamp_ns[kfs], min_interval_s=min(s.init_alignment_interval_s, span / (s.init_keyframes - 1)))
+        R_v, t_v = ctx.map.R_world_keyframe[kfs[used]], ctx.map.t_world_keyframe[kfs[used]]
         R_c0 = np.einsum("ji,njk->nik", R_v[0], R_v)
         p_c0 = np.einsum("ji,nj->ni", R_v[0], t_v - t_v[0])
-        result: Alignment = align_visual_inertial(ctx.map.keyframe_stamp_ns[kfs], R_c0, p_c0, ctx.model.imu, T_body_cam0=ctx.model.T_body_camera, noise=ctx.model.noise, settings=s.alignment)
-        self.report = {"keyframes": n_kf, "span_s": span, **result.to_dict()}
+        result: Alignment = align_visual_inertial(ctx.map.keyframe_stamp_ns[kfs[used]], R_c0, p_c0, ctx.model.imu, T_body_cam0=ctx.model.T_body_camera, noise=ctx.model.noise, settings=s.alignment)
+        self.report = {"keyframes": n_kf, "aligned_keyframes": len(used), "span_s": span, **result.to_dict()}
         if not result.success:
             self.status = f"alignment rejected at keyframe {k} ({n_kf} keyframes, {span:.1f} s): {result.reason}; retrying"
             ctx.messages.append(self.status)
             return
-        self._apply_alignment(kfs, result, ctx)
+        self._apply_alignment(kfs[used], result, ctx)
         ctx.inertial.initialized = True
         self.keyframe = k
         truth = self._init_truth(kfs, result, ctx)
@@ -88,8 +109,8 @@ class VioStart:
 
     def _apply_alignment(self, kfs: np.ndarray, result: Alignment, ctx: StartContext) -> None:
         """Scale and rotate the segment's map into the gravity-aligned world; velocities and
-        the gyro bias from the alignment; the gauge prior on the window's first keyframe."""
-        s = ctx.settings
+        the gyro bias from the alignment; the gauge prior on the first aligned keyframe for
+        the joint solve (then `narrow`)."""
         k0 = int(kfs[0])
         R_v0, t_v0 = ctx.map.R_world_keyframe[k0].copy(), ctx.map.t_world_keyframe[k0].copy()
         R_w_c0 = result.R_world_c0
@@ -143,6 +164,10 @@ class VioStart:
             ctx.map.planes.n[q], ctx.map.planes.d[q] = n_w, float(-n_w @ to_world(x_v[None])[0])
         for j, kf in enumerate(kfs):
             ctx.inertial.velocity[kf] = vel_world[j].copy()
+        # The keyframes between the aligned ones (thinned): velocity by the IMU from the previous.
+        for kf in range(int(kfs[0]) + 1, int(kfs[-1])):
+            if kf not in kfs:
+                _, _, ctx.inertial.velocity[kf] = ctx.model.predict(ctx.map, kf - 1, int(ctx.map.keyframe_stamp_ns[kf]), ctx.inertial.velocity[kf - 1], np.r_[result.bias_accel, result.bias_gyro])
         # The accelerometer bias starts at zero as before: the alignment's estimate serves its
         # scale, but it is weakly determined (mostly its prior's) and, as the windows' prior
         # mean (σ `bias_sigma_accel`), held them off (MH_01: scale error -2.5 % against -1.0 %).
@@ -150,8 +175,23 @@ class VioStart:
             ctx.inertial.bias[kf] = np.r_[np.zeros(3), result.bias_gyro]
         for kf in range(ctx.map.segment_start, len(ctx.map) - 1):
             ctx.inertial.factors[kf] = ctx.model.factor(ctx.map, kf, ctx.inertial.bias[kf])
-        # Window: from here on the prior is the gauge; landmarks before the window are frozen.
-        w0 = max(ctx.map.segment_start, len(ctx.map) - s.window + 1)  # the next window's first keyframe
+        # The joint solve: every aligned keyframe with IMU factors, the gauge prior on the first
+        # (then `narrow`); landmarks anchored before it are frozen from here on.
+        ctx.inertial.joint_from = k0
+        ctx.inertial.marginalized_before = k0
+        ctx.inertial.prior = self._gauge_prior(k0, ctx)
+
+    def narrow(self, ctx: StartContext) -> None:
+        """After the start's joint solve: the usual window of the last `window` keyframes,
+        the gauge prior (VioSettings' σ) on its first keyframe's solved state; the keyframes
+        before it leave the optimization."""
+        joint = np.arange(ctx.inertial.joint_from if ctx.inertial.joint_from is not None else len(ctx.map) - 1, len(ctx.map))
+        if "scale_error_pct" in self.report and bool(np.all(ctx.source.ground_truth_valid[ctx.map.keyframe_frame[joint]])):
+            self.report["joint_scale_error_pct"] = _scale_error_pct(joint, ctx)
+            if self.first[0] == self.keyframe:
+                self.first = (self.keyframe, dict(self.report))
+        w0 = max(ctx.map.segment_start, len(ctx.map) - ctx.settings.window + 1)  # the next window's first keyframe
+        ctx.inertial.joint_from = None
         ctx.inertial.marginalized_before = w0
         ctx.inertial.prior = self._gauge_prior(w0, ctx)
 
@@ -199,10 +239,16 @@ class VioStart:
             out["gravity_error_deg"] = float(np.degrees(np.arccos(np.clip(g @ g_true_c0 / (np.linalg.norm(g) * 9.81), -1.0, 1.0))))
             # Scale: the aligned keyframes' positions against the true ones, by the similarity
             # (Umeyama) that fits them best: the estimate's scale over the truth's, minus one.
-            t_gt = src.T_world_rect0[ctx.map.keyframe_frame[kfs]][:, :3, 3]
-            _, _, s_fit = umeyama_alignment(ctx.map.t_world_keyframe[kfs], t_gt, with_scale=True)
-            out["scale_error_pct"] = float(100.0 * (1.0 / s_fit - 1.0)) if s_fit > 0 else float("nan")
+            out["scale_error_pct"] = _scale_error_pct(kfs, ctx)
         return out
+
+
+def _scale_error_pct(kfs: np.ndarray, ctx: StartContext) -> float:
+    """The similarity (Umeyama) that fits keyframes `kfs` best to their true positions: the
+    estimate's scale over the truth's, minus one, in per cent (they must have ground truth)."""
+    t_gt = ctx.source.T_world_rect0[ctx.map.keyframe_frame[kfs]][:, :3, 3]
+    _, _, s_fit = umeyama_alignment(ctx.map.t_world_keyframe[kfs], t_gt, with_scale=True)
+    return float(100.0 * (1.0 / s_fit - 1.0)) if s_fit > 0 else float("nan")
 
 
 def imu_state(the_map: Map, k: int, state: InertialState, start: VioStart, source: object, imu_stamps_ns: np.ndarray) -> ImuState:

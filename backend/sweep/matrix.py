@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from backend.data.topics import TOPIC_NAMES
 from backend.optim.variant import VARIANTS, Variant
+from backend.pipeline.factory import default_window
 
 if TYPE_CHECKING:
     from backend.pipeline.factory import EngineConfig
@@ -35,7 +36,6 @@ MAX_DURATION_S = 3600.0  # as `coplanar run` (app/sources.py)
 MAX_SPEED = 10.0
 MAX_WINDOW = 1000
 MAX_RUNS = 100_000
-DEFAULT_WINDOW = 10  # as `coplanar run --window`
 TRAJECTORY_FRAMES = ("truth", "camera")  # as `coplanar run --trajectory-frame`
 AXES = (
     "scenes",
@@ -68,7 +68,7 @@ class RunSpec:
     a `dataset` path, absolute), `variant`, `mode` (stereo | vio), `segmenter` (geometric |
     learned | oracle; resolved, never the mode's implicit default), `seed`, and for rendered
     scenes `duration_s` (seconds of motion), `speed` (times the scene's speed) and `stride`
-    (every N-th frame); `window`: keyframes optimized per step; `frames`: only the first N
+    (every N-th frame); `window`: keyframes optimized per step (None: the mode's); `frames`: only the first N
     frames (None: all); `keyframes`: stop after N keyframes (None: at the end); `dense`: also
     fuse the keyframes' depth (mesh.ply); `trajectory_frame`: truth | camera; `calib`: the
     calibration a dataset that holds none is read with (a ROS bag's `--calib`; None: none);
@@ -86,12 +86,16 @@ class RunSpec:
     stride: int = 1
     frames: int | None = None
     calib: str | None = None
-    window: int = DEFAULT_WINDOW
+    window: int | None = None  # None: the mode's (`coplanar run --window`'s default)
     keyframes: int | None = None
     dense: bool = False
     trajectory_frame: str = "truth"
     topics: tuple[tuple[str, str], ...] = ()
     segmenter_model: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.window is None:
+            object.__setattr__(self, "window", default_window(self.mode))
 
     @property
     def input_name(self) -> str:
@@ -110,7 +114,7 @@ class RunSpec:
         extra = [
             f"×{self.speed:g} speed" if self.speed != 1.0 else "",
             f"stride {self.stride}" if self.stride != 1 else "",
-            f"window {self.window}" if self.window != DEFAULT_WINDOW else "",
+            f"window {self.window}" if self.window != default_window(self.mode) else "",
             f"{self.frames} frames" if self.frames is not None else "",
             f"{self.keyframes} keyframes" if self.keyframes is not None else "",
         ]
@@ -132,7 +136,7 @@ class RunSpec:
             parts.append(f"speed{self.speed:g}")
         if self.stride != 1:
             parts.append(f"stride{self.stride}")
-        if self.window != DEFAULT_WINDOW:
+        if self.window != default_window(self.mode):
             parts.append(f"window{self.window}")
         if self.frames is not None:
             parts.append(f"frames{self.frames}")
@@ -205,7 +209,7 @@ class SweepMatrix:
     seeds: tuple[int, ...] = (0,)
     speeds: tuple[float, ...] = (1.0,)
     strides: tuple[int, ...] = (1,)
-    windows: tuple[int, ...] = (DEFAULT_WINDOW,)
+    windows: tuple[int | None, ...] = (None,)
     duration_s: float = DEFAULT_DURATION_S
     frames: int | None = None
     keyframes: int | None = None

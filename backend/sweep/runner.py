@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-from backend.sweep.matrix import DEFAULT_WINDOW, RunSpec
+from backend.sweep.matrix import RunSpec
 from backend.sweep.results import FAILED, failed_row, ok_row
 
 RUN_RECORD = "run.json"
@@ -96,7 +96,8 @@ def finished_row(spec: RunSpec, out: pathlib.Path) -> Row | None:
     return ok_row(spec, metrics, wall_s=float(record["wall_s"]))
 
 
-_LATER_PARAMETERS = {"window": DEFAULT_WINDOW, "keyframes_limit": None, "dense": False, "trajectory_frame": "truth", "topics": None, "segmenter_model": None}  # absent from older run.json files
+# Parameters absent from older run.json files, at the value they had then (every window was 10).
+_LATER_PARAMETERS = {"window": 10, "keyframes_limit": None, "dense": False, "trajectory_frame": "truth", "topics": None, "segmenter_model": None}
 _PATHS = ("input_path", "calib", "segmenter_model")  # compared by name: the same sweep resumes where its files are mounted elsewhere
 
 

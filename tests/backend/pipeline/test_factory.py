@@ -15,10 +15,12 @@ from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter
 from backend.frontend.segmentation_learned import LearnedSegmenter
 from backend.frontend.segmenters import SegmenterError, SegmenterKind
 from backend.optim.variant import Variant
-from backend.pipeline.factory import EngineConfig, Mode, make_engine
+from backend.pipeline.factory import EngineConfig, Mode, default_window, make_engine
 from backend.pipeline.sim_engine import SimEngine
 from backend.pipeline.stereo_engine import StereoEngine
+from backend.pipeline.stereo_settings import StereoSettings
 from backend.pipeline.vio_engine import VioEngine
+from backend.pipeline.vio_settings import VioSettings
 
 
 def test_a_monte_carlo_world() -> None:
@@ -38,10 +40,14 @@ def test_a_rendered_scene_headless_and_interactive() -> None:
     assert not debugger.settings.skip_unused_stages and debugger.settings.image_scale == 1.0 and debugger.settings.hessian
 
 
-def test_vio_takes_the_learned_segmenter_by_default(tmp_path: pathlib.Path) -> None:
+def test_vio_takes_the_learned_segmenter_and_its_own_window_by_default(tmp_path: pathlib.Path) -> None:
     engine = make_engine(EngineConfig(scene="room", duration_s=1.0, mode="vio", variant="P-wo"))
     assert isinstance(engine, VioEngine) and isinstance(engine.segmenter, LearnedSegmenter)
     assert engine.source.endswith(", VIO, learned segmenter")
+    assert engine.settings.window == default_window(Mode.VIO) == VioSettings().window == 20
+    assert make_engine(EngineConfig(scene="room", duration_s=1.0, mode="vio", window=10)).settings.window == 10
+    stereo = make_engine(EngineConfig(scene="room", duration_s=1.0))
+    assert stereo.settings.window == default_window(Mode.STEREO) == StereoSettings().window == 10
 
 
 def test_a_dataset_and_the_oracle_it_cannot_have(tmp_path: pathlib.Path) -> None:

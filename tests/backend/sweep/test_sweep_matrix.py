@@ -143,6 +143,11 @@ def test_run_options_reach_every_run_and_its_folder_name(tmp_path: pathlib.Path)
     assert runs[0].sequence == "room (window 5, 3 keyframes)" and runs[1].sequence == "room (3 keyframes)"
     assert runs[0].config().window == 5 and runs[0].config().segmenter_model is None  # the model: the learned segmenter's only
     assert runs[2].config().segmenter_model == model and runs[2].parameters()["segmenter_model"] == str(model)
+    # Each mode's own window unless told: VIO's is 20, so its window-10 run is named.
+    vio = SweepMatrix(**parse_axes({"scenes": "room", "variants": "PL-w", "modes": "vio", "windows": "10,20"})).runs()
+    assert [r.run_id for r in vio] == ["room_PL-w_vio_learned_seed0_30s_window10", "room_PL-w_vio_learned_seed0_30s"]
+    (default,) = SweepMatrix(**parse_axes({"scenes": "room", "variants": "PL-w", "modes": "vio"})).runs()
+    assert default.window == 20 and default.parameters()["window"] == 20 and default.config().window == 20
     (tmp_path / "V1_01.bag").write_bytes(b"")
     toml = tmp_path / "sweep.toml"
     toml.write_text('datasets = ["V1_01.bag"]\nvariants = ["P-wo"]\n[topics]\ncam0 = "/left/image"\nimu0 = "/imu"\n')
