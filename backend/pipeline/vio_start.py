@@ -15,7 +15,6 @@ import numpy as np
 
 from backend.data.source import RenderedTruth, StereoSource
 from backend.eval.trajectory import umeyama_alignment
-from backend.geometry import line as line_geo
 from backend.geometry import so3
 from backend.mapping.map import Map
 from backend.optim import inertial
@@ -31,6 +30,16 @@ def _yaw_between(R_target: np.ndarray, R: np.ndarray) -> np.ndarray:
     M = R_target @ R.T
     yaw = np.arctan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1])
     return so3.exp(np.array([0.0, 0.0, yaw]))
+
+
+def similarity_plucker(m: np.ndarray, v: np.ndarray, *, scale: float, R: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Plücker lines (m, v) (N, 3) under the similarity x ↦ scale·R·x + c, with |v| = 1: v ↦ R v,
+    m ↦ scale·R m + c × R v. Exact also for a line far from the origin (|m| ≫ 1), whose two
+    points, transformed and differenced, would cancel to nothing."""
+    v_new = v @ R.T
+    m_new = scale * (m @ R.T) + np.cross(c, v_new)
+    norm = np.linalg.norm(v_new, axis=1, keepdims=True)
+    return m_new / norm, v_new / norm
 
 
 def thinned(stamps_ns: np.ndarray, *, min_interval_s: float) -> np.ndarray:
@@ -148,14 +157,11 @@ class VioStart:
         pts = np.flatnonzero(P.anchor[:] >= ctx.map.segment_start)
         P.p_world[pts] = to_world(P.p_world[pts])
         segment_lines = np.flatnonzero(Lm.anchor[:] >= ctx.map.segment_start)
-        lns = segment_lines[np.linalg.norm(Lm.v[segment_lines], axis=1) > 0]  # lines never triangulated (v = 0) stay as they are
+        # Lines never triangulated (v = 0) or left degenerate by a solve (not finite) stay as they are.
+        finite = np.all(np.isfinite(Lm.m[segment_lines]), axis=1) & np.all(np.isfinite(Lm.v[segment_lines]), axis=1)
+        lns = segment_lines[finite & (np.linalg.norm(np.where(finite[:, None], Lm.v[segment_lines], 0.0), axis=1) > 0)]
         if len(lns):
-            m_v, v_v = Lm.m[lns], Lm.v[lns]
-            p0 = np.cross(v_v, m_v)  # the line's point nearest the visual origin (|v| = 1)
-            a_w, b_w = to_world(p0), to_world(p0 + v_v)
-            m, v = line_geo.from_points(a_w, b_w)
-            norm = np.linalg.norm(v, axis=1, keepdims=True)
-            Lm.m[lns], Lm.v[lns] = m / norm, v / norm
+            Lm.m[lns], Lm.v[lns] = similarity_plucker(Lm.m[lns], Lm.v[lns], scale=scale, R=R_wv, c=t_w_c0 - scale * (R_wv @ t_v0))
         used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[segment_lines]]))
         for q in used_planes[used_planes >= 0]:
             n_v, d_v = ctx.map.planes.n[q], ctx.map.planes.d[q]

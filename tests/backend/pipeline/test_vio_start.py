@@ -6,7 +6,9 @@ import numpy as np
 
 from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
-from backend.pipeline.vio_start import thinned
+from backend.geometry import line as line_geo
+from backend.geometry import so3
+from backend.pipeline.vio_start import similarity_plucker, thinned
 from backend.vio.alignment import AlignmentSettings, align_visual_inertial
 from tests.backend.vio.test_alignment import VISUAL_SCALE, keyframes
 
@@ -36,3 +38,21 @@ def test_thinning_removes_the_scale_bias_of_noisy_positions_at_a_slow_pace() -> 
     assert every.success and sparse.success, (every.reason, sparse.reason)
     assert every.scale * VISUAL_SCALE - 1.0 < -0.25
     assert abs(sparse.scale * VISUAL_SCALE - 1.0) < 0.05
+
+
+def test_similarity_plucker_moves_lines_as_their_points_and_keeps_far_ones_finite() -> None:
+    """The start's scaling and rotation of the map's lines: the same line as through its two
+    transformed points; a line 1e43 from the origin (a degenerate line a solve left in the map,
+    seen on `room` at speed 1) stays finite instead of 0 / 0."""
+    rng = np.random.default_rng(3)
+    R, c, scale = so3.exp(np.array([0.3, -0.2, 1.1])), np.array([1.0, -2.0, 0.5]), 0.8
+    p, q = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    m, v = line_geo.from_points(p, q)
+    n = np.linalg.norm(v, axis=1, keepdims=True)
+    m_new, v_new = similarity_plucker(m / n, v / n, scale=scale, R=R, c=c)
+    m_ref, v_ref = line_geo.from_points(scale * p @ R.T + c, scale * q @ R.T + c)
+    n_ref = np.linalg.norm(v_ref, axis=1, keepdims=True)
+    assert np.allclose(m_new, m_ref / n_ref) and np.allclose(v_new, v_ref / n_ref)
+    far_m, far_v = np.array([[0.0, 1e43, 0.0]]), np.array([[1.0, 0.0, 0.0]])
+    m_far, v_far = similarity_plucker(far_m, far_v, scale=scale, R=R, c=c)
+    assert np.all(np.isfinite(m_far)) and np.allclose(np.linalg.norm(v_far), 1.0)
