@@ -2,7 +2,8 @@
 initialization, `backend.vio.alignment`) over the keyframes of a map segment's visual window
 (`thinned` to a minimum interval), and what it changes when it succeeds: the segment's map
 scaled and rotated into a gravity-aligned world, velocities and the gyroscope bias, the
-preintegrations, and the gauge prior of the first window with IMU factors. The start's state says how far it got (the snapshots show it).
+preintegrations, and the gauge prior of the first window with IMU factors. The start's
+state says how far it got (the snapshots show it).
 
 Frames and units: world z up, metres, seconds; keyframe ids are the map's.
 """
@@ -158,8 +159,8 @@ class VioStart:
         P.p_world[pts] = to_world(P.p_world[pts])
         segment_lines = np.flatnonzero(Lm.anchor[:] >= ctx.map.segment_start)
         # Lines never triangulated (v = 0) or left degenerate by a solve (not finite) stay as they are.
-        finite = np.all(np.isfinite(Lm.m[segment_lines]), axis=1) & np.all(np.isfinite(Lm.v[segment_lines]), axis=1)
-        lns = segment_lines[finite & (np.linalg.norm(np.where(finite[:, None], Lm.v[segment_lines], 0.0), axis=1) > 0)]
+        m_v, v_v = Lm.m[segment_lines], Lm.v[segment_lines]
+        lns = segment_lines[np.all(np.isfinite(m_v), axis=1) & (np.linalg.norm(v_v, axis=1) > 0)]  # NaN > 0 is False
         if len(lns):
             Lm.m[lns], Lm.v[lns] = similarity_plucker(Lm.m[lns], Lm.v[lns], scale=scale, R=R_wv, c=t_w_c0 - scale * (R_wv @ t_v0))
         used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[segment_lines]]))
@@ -191,7 +192,8 @@ class VioStart:
         """After the start's joint solve: the usual window of the last `window` keyframes,
         the gauge prior (VioSettings' σ) on its first keyframe's solved state; the keyframes
         before it leave the optimization."""
-        joint = np.arange(ctx.inertial.joint_from if ctx.inertial.joint_from is not None else len(ctx.map) - 1, len(ctx.map))
+        assert ctx.inertial.joint_from is not None, "narrow() follows a successful try_initialize()"
+        joint = np.arange(ctx.inertial.joint_from, len(ctx.map))
         if "scale_error_pct" in self.report and bool(np.all(ctx.source.ground_truth_valid[ctx.map.keyframe_frame[joint]])):
             self.report["joint_scale_error_pct"] = _scale_error_pct(joint, ctx)
             if self.first[0] == self.keyframe:
