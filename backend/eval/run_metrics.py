@@ -86,13 +86,16 @@ def stereo_timing(steps: list[tuple[int, dict[str, float]]]) -> dict:
     return timing
 
 
-def vio_metrics(snapshot, frames) -> dict:
+def vio_metrics(snapshot, frames, *, excitation_onset_s: float | None = None) -> dict:
     """The VIO part of metrics.json: the first initialization (keyframe, time, what the
     alignment estimated and, on rendered scenes, its errors; the latest one's too, after a
     loss VIO starts again; the gravity direction and gyroscope bias errors after the
     refinement by the windows with IMU factors), the last keyframe's velocity and biases,
     and the scale error of the whole trajectory (the Sim(3) alignment's scale minus one, in
-    percent, over the tracked frames with ground truth after the initialization)."""
+    percent, over the tracked frames with ground truth after the initialization).
+    `excitation_onset_s`: when the input first moved enough for a start to see its scale
+    (`backend.eval.excitation`, seconds from the first frame; None: never, or no ground
+    truth); the start's time after it is `init_after_excitation_s`."""
     imu = snapshot.imu
     first = imu.first_init_keyframe
 
@@ -112,7 +115,11 @@ def vio_metrics(snapshot, frames) -> dict:
         "bias_accel": imu.bias[-1][:3].tolist(),
         "bias_gyro": imu.bias[-1][3:].tolist(),
         "scale_error_pct": None,
+        "excitation_onset_s": excitation_onset_s,
+        "init_after_excitation_s": None,
     }
+    if first >= 0 and excitation_onset_s is not None:
+        out["init_after_excitation_s"] = float(time_s(first) - excitation_onset_s)
     if first >= 0 and snapshot.ground_truth is not None:
         # Gravity after the refinement: the angle between the world's vertical seen from the
         # estimated and from the true keyframe orientation (roll and pitch error), at the

@@ -267,6 +267,20 @@ def _simulate(engine: SimEngine, config: EngineConfig, out: pathlib.Path, *, key
     return metrics, summary, lambda folder: _write_outputs(folder, final, metrics, frame=frame, frames=written.poses, keyframes=written.poses, groundtruth=written.groundtruth)
 
 
+def _excitation_onset(source: Any) -> float | None:
+    """Seconds from the input's first frame to its excitation onset
+    (`backend.eval.excitation`), from its ground truth at the frames (None: none)."""
+    import numpy as np
+
+    from backend.eval.excitation import excitation_onset_s
+
+    valid = np.asarray(source.ground_truth_valid, bool)
+    if not valid.any():
+        return None
+    p_world = np.where(valid[:, None], np.asarray(source.T_world_rect0)[:, :3, 3], np.nan)
+    return excitation_onset_s(np.asarray(source.timestamps_ns), p_world)
+
+
 def _track(engine: Any, config: EngineConfig, out: pathlib.Path, *, keyframes: int | None, dense: bool, choice: TrajectoryFrame, progress: bool) -> tuple[dict[str, Any], str, _Writer]:
     """An image input's run (stereo or VIO): every frame up to `keyframes` keyframes."""
     from tqdm import tqdm
@@ -340,7 +354,7 @@ def _track(engine: Any, config: EngineConfig, out: pathlib.Path, *, keyframes: i
         metrics["plane_recovery"] = {"note": PLANE_RECOVERY_NOTE, **plane_recovery(source, snapshot.estimate.timestamp_ns, snapshot.planes)}
     if snapshot.imu is not None:
         metrics["mode"] = "vio"
-        metrics["vio"] = vio_metrics(snapshot, dataclasses.replace(frames, estimate=written.poses, ground_truth=written.truth))
+        metrics["vio"] = vio_metrics(snapshot, dataclasses.replace(frames, estimate=written.poses, ground_truth=written.truth), excitation_onset_s=_excitation_onset(source))
     final = snapshot
 
     def write(folder: pathlib.Path) -> None:

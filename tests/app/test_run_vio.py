@@ -82,6 +82,9 @@ def test_vio_at_the_default_speed_starts_with_its_scale(tmp_path: pathlib.Path) 
     assert vio["initialized"] and vio["init_time_s"] <= 6.0
     assert abs(vio["alignment"]["joint_scale_error_pct"]) < 3.0
     assert abs(vio["scale_error_pct"]) < 3.0 and vio["ate_after_init_cm"] < 2.0
+    # Seed 0's path accelerates from the start (0.25 m/s² averaged over its first second):
+    # the excitation onset is the first frame, and the start is timed from it.
+    assert vio["excitation_onset_s"] == 0.0 and vio["init_after_excitation_s"] == vio["init_time_s"]
 
 
 def test_vio_starts_within_3_s_on_boxes(tmp_path: pathlib.Path) -> None:
