@@ -118,8 +118,9 @@ def vio_metrics(snapshot, frames, *, excitation_onset_s: float | None = None) ->
         "excitation_onset_s": excitation_onset_s,
         "init_after_excitation_s": None,
     }
-    if first >= 0 and excitation_onset_s is not None:
-        out["init_after_excitation_s"] = float(time_s(first) - excitation_onset_s)
+    init_s = time_s(first)
+    if init_s is not None and excitation_onset_s is not None:
+        out["init_after_excitation_s"] = init_s - excitation_onset_s
     if first >= 0 and snapshot.ground_truth is not None:
         # Gravity after the refinement: the angle between the world's vertical seen from the
         # estimated and from the true keyframe orientation (roll and pitch error), at the
