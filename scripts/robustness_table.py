@@ -12,7 +12,9 @@ initialized within 3 s of the first excitation (the excitation onset of
 `backend.eval.excitation`: the true acceleration first averages VINS-Mono's 0.25 m/s² over
 a second), |scale error| < 3 %, ATE < 3 cm; on a scene whose path is long (over 100 m, a
 street) the ATE goal is 1 % of the path instead. A run that is never excited that much
-cannot be expected to start: it is listed with "never excited" among its misses.
+cannot be expected to start: it is listed with "never excited" among its misses. Restarts of
+the VIO start (its structure from motion beginning again from a later frame, before any pose
+is output) are shown, not counted as misses: they cost start time, which its goal measures.
 Writes docs/pipeline/robustness.json and the robustness-table block.
 """
 
@@ -76,8 +78,6 @@ def outcome(r: dict) -> dict:
         onset = v["excitation_onset_s"]
         after = None if init is None or onset is None else init - onset
         out.update(initialized=v["initialized"], init_time_s=init, excitation_onset_s=onset, init_after_excitation_s=after, scale_error_pct=v.get("scale_error_pct"))
-        if restarts:
-            misses.append(f"{restarts} restarts")
         if onset is None:
             misses.append("never excited" + ("" if init is None else f" (init. {init:.1f} s)"))
         elif after is None or after > INIT_GOAL_S:
@@ -133,7 +133,7 @@ def table(outcomes: list[dict]) -> str:
     lines = [
         f"Seeds {', '.join(map(str, seeds))} (changes are tuned on seeds 0-1), {durations} s each, `.venv/bin/python scripts/robustness_table.py`: "
         f"**{len(outcomes) - failing} of {len(outcomes)} runs meet the goals**. Per cell over the seeds: runs missing a goal, lost frames and "
-        "re-initializations (sums), ATE after SE(3) alignment (cm, median / worst), and for VIO restarts of the start, the excitation onset "
+        "re-initializations (sums), ATE after SE(3) alignment (cm, median / worst), and for VIO restarts of the start (shown, not a goal: they cost start time), the excitation onset "
         "(s from the first frame; the first second whose true acceleration averages 0.25 m/s², VINS-Mono's threshold; median / latest; "
         '"never": runs never that excited), the initialization time after it (s, median / worst) and the Sim(3) scale error (%, median / worst).',
         "",
