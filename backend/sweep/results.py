@@ -5,7 +5,9 @@ Figures (from `backend.headless` / `backend.eval.run_metrics`): `ate_rmse_cm` (A
 alignment over the tracked frames, cm), `ate_sim3_rmse_cm`, `rpe_cm_per_m` (relative pose
 error per metre travelled, cm), `rmse_cm` (unaligned), frame and keyframe counts, lost frames
 and re-initializations, and the VIO start (`vio_initialized`, `vio_init_time_s` seconds after
-the first frame, `vio_ate_after_init_cm`). Times: `time_*_ms` the DESIGN §7 stage means
+the first frame, `vio_ate_after_init_cm`, `vio_scale_error_pct`, and `vio_excitation_onset_s`,
+`vio_init_after_excitation_s`: when the true motion first accelerated enough and the start's
+time after that, `backend.eval.excitation`). Times: `time_*_ms` the DESIGN §7 stage means
 (milliseconds; point D&M and tracking per frame, the others per keyframe where they ran,
 total per frame) and `wall_s` (seconds, the whole run). `status`: `ok` or `failed` with
 `error`, one line.
@@ -63,7 +65,14 @@ FIGURES = (
     "lines",
 )
 PLANE_FIGURES = {"planes_seen": "seen", "planes_recovered": "recovered"}  # rendered scenes (metrics.json's plane_recovery)
-VIO_FIGURES = {"vio_initialized": "initialized", "vio_init_time_s": "init_time_s", "vio_ate_after_init_cm": "ate_after_init_cm", "vio_scale_error_pct": "scale_error_pct"}
+VIO_FIGURES = {
+    "vio_initialized": "initialized",
+    "vio_init_time_s": "init_time_s",
+    "vio_ate_after_init_cm": "ate_after_init_cm",
+    "vio_scale_error_pct": "scale_error_pct",
+    "vio_excitation_onset_s": "excitation_onset_s",
+    "vio_init_after_excitation_s": "init_after_excitation_s",
+}
 STAGES = ("point_dm", "tracking", "line_dm", "plane_seg", "plane_fit", "optimization", "total_per_frame")
 TIMES = (*(f"time_{stage}_ms" for stage in STAGES), "wall_s")
 COLUMNS = (*PARAMETERS, "status", "error", *FIGURES, *PLANE_FIGURES, *VIO_FIGURES, *TIMES)
