@@ -15,6 +15,7 @@ import numpy as np
 from backend.geometry import plane as plane_geo
 
 THETA_CP = 0.8
+MAX_COORDINATE_M = 1e6  # a feature farther from the origin than this (m) is a degenerate landmark, not geometry
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,12 +64,18 @@ def ransac_plane(points: np.ndarray, segments: np.ndarray, *, rng: np.random.Gen
     Hypotheses are planes through three samples of the pooled points and segment
     endpoints; the largest consensus under Eq. 4 wins and is refitted by least squares on
     its points and endpoints. Returns None where no non-degenerate hypothesis exists (fewer
-    than three distinct, non-collinear samples).
+    than three distinct, non-collinear samples). Features that are not finite or lie beyond
+    `MAX_COORDINATE_M` (degenerate landmarks: a line almost through the camera's centre
+    triangulates kilometres away) are neither sampled nor inliers: their products would
+    overflow.
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     segments = np.asarray(segments, dtype=float).reshape(-1, 2, 3)
-    pool = np.concatenate([points, segments.reshape(-1, 3)])
-    pool = pool[np.all(np.isfinite(pool), axis=1)]
+    sane_p = _sane(points)
+    sane_l = np.all(_sane(segments.reshape(-1, 3)).reshape(-1, 2), axis=1)
+    points = np.where(sane_p[:, None], points, np.nan)
+    segments = np.where(sane_l[:, None, None], segments, np.nan)
+    pool = np.concatenate([points[sane_p], segments[sane_l].reshape(-1, 3)])
     if len(pool) < 3:
         return None
     sample = np.stack([rng.choice(len(pool), 3, replace=False) for _ in range(settings.iterations)]) if len(pool) < 8 else _distinct_triples(rng, len(pool), settings.iterations)
@@ -102,6 +109,12 @@ def ransac_plane(points: np.ndarray, segments: np.ndarray, *, rng: np.random.Gen
     total = len(points) + len(segments)
     accepted = (int(in_p.sum()) + int(in_l.sum())) >= settings.theta_cp * total
     return Consensus(n=n, d=float(d), point_inlier=in_p, line_inlier=in_l, accepted=bool(accepted))
+
+
+def _sane(x: np.ndarray) -> np.ndarray:
+    """(N,) whether rows of `x` (N, 3) are finite and within `MAX_COORDINATE_M` of the origin."""
+    with np.errstate(invalid="ignore"):
+        return np.all(np.abs(x) <= MAX_COORDINATE_M, axis=1)
 
 
 def _distinct_triples(rng: np.random.Generator, n: int, count: int) -> np.ndarray:

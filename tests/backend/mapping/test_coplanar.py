@@ -156,6 +156,25 @@ def test_degenerate_input_gives_none(points: np.ndarray) -> None:
     assert ransac_plane(points, np.zeros((0, 2, 3)), rng=np.random.default_rng(0)) is None
 
 
+def test_degenerate_landmarks_far_away_are_ignored_without_overflow() -> None:
+    """A diverged map holds landmarks 1e160-1e200 m away (a street's VIO run crashed on
+    them: the cross products overflowed and a plane with a zero normal entered the map).
+    They are neither sampled nor inliers; the plane comes from the sane features, with no
+    RuntimeWarning."""
+    rng = np.random.default_rng(0)
+    far = np.array([[1e200, 3e199, -2e200], [1e170, 1e170, 1e170], [np.inf, 0.0, 0.0]])
+    points = np.concatenate([_on_plane(rng, 30), far])
+    segments = np.concatenate([np.stack([_on_plane(rng, 4), _on_plane(rng, 4)], axis=1), np.array([[[1e160, 0.0, 0.0], [0.0, 1e161, 0.0]]])])
+    with np.errstate(all="raise"):
+        cons = ransac_plane(points, segments, rng=np.random.default_rng(1))
+    assert cons is not None
+    _assert_same_plane(cons.n, cons.d)
+    np.testing.assert_array_equal(cons.point_inlier, np.arange(33) < 30)
+    np.testing.assert_array_equal(cons.line_inlier, np.arange(5) < 4)
+    with np.errstate(all="raise"):
+        assert ransac_plane(far, segments[4:], rng=np.random.default_rng(1)) is None
+
+
 def test_degenerate_collinear_segments_give_none() -> None:
     line = np.arange(10, dtype=float)[:, None] * np.array([[1.0, 1.0, 0.0]])
     segments = np.stack([line[:5], line[5:]], axis=1)
