@@ -66,9 +66,9 @@ def excitation_onset_s(
     csum = np.concatenate([[0.0], np.cumsum(np.where(known, a, 0.0))])
     ccount = np.concatenate([[0], np.cumsum(known)])
     end = np.searchsorted(t, t + window_ns, side="right")
-    count = ccount[end] - ccount[np.arange(len(t))]
+    count = ccount[end] - ccount[:-1]  # the frames with an acceleration in each frame's window
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = (csum[end] - csum[np.arange(len(t))]) / count
+        mean = (csum[end] - csum[:-1]) / count
     excited = np.flatnonzero((count > 0) & (mean >= threshold_mps2))
     if len(excited) == 0:
         return None
