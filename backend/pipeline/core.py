@@ -25,7 +25,7 @@ import numpy as np
 
 from backend.common.timing import Stage
 from backend.data.source import StereoSource
-from backend.frontend.lines import Segments, StereoSegments
+from backend.frontend.lines import Segments, StereoSegments, detect_segments
 from backend.frontend.points import Keypoints, detect_points
 from backend.frontend.segmentation import PlaneMasks, PlaneSegmenter
 from backend.geometry.camera import PinholeCamera
@@ -41,7 +41,7 @@ from backend.pipeline.stages.culling import CullSettings, cull, local_map
 from backend.pipeline.stages.planes import FeatureStates, detect_planes, segment_keyframe
 from backend.pipeline.stages.snapshot import build_snapshot
 from backend.pipeline.stages.solve import SolveSettings, WindowExtension, solve_window
-from backend.pipeline.stages.track import Tracked, TrackSettings, extrapolate, match_map_lines, track_frame
+from backend.pipeline.stages.track import LineAid, Tracked, TrackSettings, extrapolate, match_map_lines, track_frame
 from backend.pipeline.stereo_settings import StereoSettings
 
 
@@ -181,13 +181,20 @@ class PipelineCore:
         s = self.settings
         return TrackSettings(s.search_radius_px, s.refine_radius_px, s.max_hamming, s.match_ratio, s.min_tracking_inliers, s.pixel_sigma, s.cauchy, s.outlier_px, s.seed, s.verify_agreement)
 
-    def track(self, i: int, kp: Keypoints, *, predicted: tuple[np.ndarray, np.ndarray], verify_below: int | None = None) -> Tracked:
+    def track(self, i: int, kp: Keypoints, *, predicted: tuple[np.ndarray, np.ndarray], verify_below: int | None = None, left: np.ndarray | None = None) -> Tracked:
         """Frame i's pose against the local map from the `predicted` one (stages/track.py;
         `verify_below`: fewer inliers than this and the PnP candidates are tried too, None:
-        the prediction's pose is trusted as it was before the stereo engine verified it)."""
+        the prediction's pose is trusted as it was before the stereo engine verified it).
+        `left`: the frame's left image, whose segments help place it against the local
+        map's lines where its points alone cannot (variants with lines only; None: points
+        only)."""
         last = (self.frame_poses[-1][1], self.frame_poses[-1][2]) if len(self.frame_poses) == 2 else None  # (one frame: the prediction is its pose)
         s = self.track_settings()
-        return track_frame(self.camera, s, i, kp, the_map=self.map, local_points=self.local_points, predicted=predicted, last_frame=last, messages=self.messages, verify_below=verify_below)
+        aid = None
+        if left is not None and self.variant.with_lines and len(self.local_lines):
+            line_settings = self.settings.lines
+            aid = LineAid(self.local_lines, lambda: detect_segments(left, settings=line_settings), line_settings, self.settings.line_search_px, self.settings.min_depth_m)
+        return track_frame(self.camera, s, i, kp, the_map=self.map, local_points=self.local_points, predicted=predicted, last_frame=last, messages=self.messages, verify_below=verify_below, lines=aid)
 
     def match_lines(self, R: np.ndarray, t: np.ndarray, ids: np.ndarray, segments: Segments) -> np.ndarray:
         s = self.settings

@@ -13,7 +13,9 @@ inliers (the motion model failed: fast or suddenly changing motion), four candid
 tried and the one with the most inliers wins: a three times wider search around the
 prediction, the same around the last frame's pose, and PnP-RANSAC on descriptor matches
 with the last keyframe's points and with the whole local map; when none has enough
-inliers, the frame is *lost* (its pose is the prediction). The paper's keyframe rule (at
+inliers, variants with lines try the local map's lines with the points (`LineAid` in
+`stages/track.py`: a bare wall's few corners and its marks' edges); when that fails too,
+the frame is *lost* (its pose is the prediction). The paper's keyframe rule (at
 least 1 s since the last keyframe, the paper's 20 frames at 20 Hz, more than 40 tracked
 points, at least 10 % new keypoints) with a quality fallback (tracked points below a share
 of the last keyframe's: the scene changed; at least 0.1 s after it) and a fast-motion rule
@@ -114,7 +116,7 @@ class StereoEngine(CoreEngine):
                 tracked = Tracked(R, t, np.full(0, -1, np.int64), 0, True)
                 reason = "first frame"
             else:
-                tracked = c.track(i, kp, predicted=c.constant_velocity(i), verify_below=self._verify_below())
+                tracked = c.track(i, kp, predicted=c.constant_velocity(i), verify_below=self._verify_below(), left=left)
                 reason = self._keyframe_reason(i, kp, tracked)
             timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
             c.remember_frame(i, tracked.R, tracked.t)

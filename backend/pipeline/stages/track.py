@@ -7,6 +7,7 @@ frame's. World frame z up, metres; pixels of `camera`."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
@@ -15,18 +16,44 @@ from backend.frontend.points import Keypoints, best_matches, pair_hamming
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.mapping.map import Map
-from backend.pipeline.tracking import match_by_projection, merge_matches, pixel_errors, refine_pose, relocalize
+from backend.pipeline.tracking import line_errors, line_reprojection, match_by_projection, merge_matches, pixel_errors, refine_pose, relocalize, reprojection
 
 
 @dataclasses.dataclass(frozen=True)
 class Tracked:
-    """A frame's pose, the keypoint matched to each local map point (-1: none), inliers."""
+    """A frame's pose, the keypoint matched to each local map point (-1: none), point
+    inliers, and the map lines that helped place it (`line_inliers`: 0 unless the points
+    alone could not, `LineAid`)."""
 
     R: np.ndarray
     t: np.ndarray
     match: np.ndarray
     inliers: int
     ok: bool
+    line_inliers: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class LineAid:
+    """The local map's lines for a frame whose points alone cannot place it (a bare wall
+    with a few marks: too few corners, but their edges): the map line ids `ids`, the
+    frame's left segments (`segments`, called only when needed: LSD costs a keyframe's
+    line detection), and how segments match map lines (`settings`, `line_search_px`,
+    `min_depth_m`, as at keyframes). A line inlier counts as a point inlier (two residuals
+    each); the pose needs `min_inliers` of them together, at least `min_line_inliers`
+    lines among them, and must be well constrained: its translation's standard deviation
+    (the inliers' Gauss-Newton covariance at the refinement's `pixel_sigma`, largest
+    axis) at most `max_translation_std_m` (a few marks on one wall leave the distance to it
+    loose)."""
+
+    ids: np.ndarray
+    segments: Callable[[], Segments]
+    settings: LineSettings
+    line_search_px: float
+    min_depth_m: float
+    min_inliers: int = 10
+    min_line_inliers: int = 3
+    max_translation_std_m: float = 0.02
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,6 +147,7 @@ def track_frame(
     last_frame: tuple[np.ndarray, np.ndarray] | None,
     messages: list[str],
     verify_below: int | None = None,
+    lines: LineAid | None = None,
 ) -> Tracked:
     """Pose of frame i against the local map, from the `predicted` pose; `last_frame`: the
     last frame's pose where a motion model made the prediction (None: it is that pose).
@@ -129,7 +157,9 @@ def track_frame(
     A candidate other than the prediction that wins says how in `messages` where the
     prediction failed; replacing a tracked but untrusted prediction is routine (every stereo
     run's second frame, before the motion model has a velocity) and says nothing, so that a
-    run's output stays quiet."""
+    run's output stays quiet. `lines`: where no candidate has enough point inliers, the
+    prediction and the last frame's pose are tried once more with the local map's lines
+    added (`LineAid`; None: points only)."""
     R, t = predicted
     ids = local_points
     if len(ids) == 0 or len(kp.uv) == 0:
@@ -172,7 +202,52 @@ def track_frame(
         if how and not result.ok:
             messages.append(f"frame {i}: {how}")
         return best
+    if lines is not None and len(lines.ids):
+        starts = [(R, t)] + ([last_frame] if last_frame is not None else [])
+        aided = [refine_with_lines(camera, s, lines, R0, t0, P, D, kp, the_map=the_map) for R0, t0 in starts]
+        best = max(aided, key=lambda a: a.inliers + a.line_inliers)
+        if best.ok:
+            return best
     return Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
+
+
+def refine_with_lines(camera: PinholeCamera, s: TrackSettings, aid: LineAid, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, *, the_map: Map) -> Tracked:
+    """The pose from (R, t) against map points `P` (descriptors `D`) and the map lines of
+    `aid` together: both matched by projection (points within three times the search
+    radius, lines as at keyframes), refined with points and lines, outliers (off by more
+    than `outlier_px`) dropped, matched again around the refined pose and refined once more."""
+    segments = aid.segments()
+    m_world, v_world = the_map.lines.m[aid.ids], the_map.lines.v[aid.ids]
+    p_match = match_by_projection(camera, R, t, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
+    need = aid.min_inliers
+    for attempt in range(2):
+        l_match = match_map_lines(the_map, R, t, aid.ids, segments, min_depth_m=aid.min_depth_m, line_search_px=aid.line_search_px, settings=aid.settings)
+        mp, ml = np.flatnonzero(p_match >= 0), np.flatnonzero(l_match >= 0)
+        if len(mp) + len(ml) < need or len(ml) < aid.min_line_inliers:
+            return Tracked(R, t, np.full(len(P), -1, np.int64), 0, False)
+        seg_uv = np.concatenate([segments.start[l_match[ml]], segments.end[l_match[ml]]], axis=1)
+        ref = refine_pose(camera, R, t, P[mp], kp.uv[p_match[mp]], lines_world=(m_world[ml], v_world[ml]), segments_uv=seg_uv, sigma_px=s.pixel_sigma, cauchy=s.cauchy)
+        R, t = ref.R_world_camera, ref.t_world_camera
+        p_ok = pixel_errors(camera, R, t, P[mp], kp.uv[p_match[mp]]) < s.outlier_px
+        l_ok = line_errors(camera, R, t, m_world[ml], v_world[ml], seg_uv) < s.outlier_px
+        if attempt == 0:
+            found = match_by_projection(camera, R, t, P, D, kp.uv, kp.descriptors, radius_px=s.refine_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
+            p_match = merge_matches(np.where(np.isin(np.arange(len(P)), mp[p_ok]), p_match, -1), found, n_keypoints=len(kp.uv))
+    p_match = p_match.copy()
+    p_match[mp[~p_ok]] = -1
+    n_points, n_lines = int(np.count_nonzero(p_ok)), int(np.count_nonzero(l_ok))
+    ok = n_points + n_lines >= need and n_lines >= aid.min_line_inliers
+    if ok:
+        _, J_p, _ = reprojection(camera, R, t, P[mp[p_ok]], kp.uv[p_match[mp[p_ok]]])
+        _, J_l = line_reprojection(camera, R, t, m_world[ml[l_ok]], v_world[ml[l_ok]], seg_uv[l_ok])
+        J = np.concatenate([J_p, J_l]) / s.pixel_sigma
+        H = np.tensordot(J, J, axes=([0, 1], [0, 1]))
+        try:
+            std_m = float(np.sqrt(np.max(np.linalg.eigvalsh(np.linalg.inv(H)[3:, 3:]))))
+        except np.linalg.LinAlgError:
+            std_m = np.inf
+        ok = std_m <= aid.max_translation_std_m
+    return Tracked(R, t, p_match, n_points, ok, line_inliers=n_lines)
 
 
 def agrees(camera: PinholeCamera, pose: Tracked, other: Tracked, P: np.ndarray, kp: Keypoints, *, outlier_px: float, fraction: float) -> bool:
