@@ -24,7 +24,10 @@ class PointSettings:
     """ORB detection on a `grid_cols`×`grid_rows` grid keeping at most `n_features` points
     (an equal budget per cell; FAST threshold `fast_threshold` in grey levels, `n_levels`
     pyramid levels of ratio `scale_factor`; ORB is asked for `oversample` times as many
-    before the grid selection); stereo matches need `|v_l - v_r| <= max_row_diff_px`,
+    before the grid selection). A bare image, fewer than `sparse_below` keypoints at that
+    threshold, is searched again at `sparse_fast_threshold` (as ORB-SLAM's lower FAST
+    threshold where a cell finds none: the corners of faint marks on a plain wall; a
+    textured image never reaches it, so its keypoints do not change); stereo matches need `|v_l - v_r| <= max_row_diff_px`,
     disparity `u_l - u_r` in [`min_disparity_px`, `max_disparity_px`], Hamming distance
     `<= max_hamming` (of 256 bits) and best / second best distance `< ratio`; the disparity is
     refined by SAD over a `block_px`-wide square in ±`refine_radius_px` pixels."""
@@ -34,6 +37,8 @@ class PointSettings:
     grid_cols: int = 8
     grid_rows: int = 6
     fast_threshold: int = 10
+    sparse_below: int = 150
+    sparse_fast_threshold: int = 5
     n_levels: int = 4
     scale_factor: float = 1.2
     max_row_diff_px: float = 1.5
@@ -95,6 +100,9 @@ def detect_points(image: np.ndarray, *, settings: PointSettings = PointSettings(
     s = settings
     orb = _orb(n_features=int(s.oversample * s.n_features), fast_threshold=s.fast_threshold, scale_factor=s.scale_factor, n_levels=s.n_levels)
     kps, desc = orb.detectAndCompute(image, None)
+    if len(kps) < s.sparse_below and s.sparse_fast_threshold < s.fast_threshold:
+        orb = _orb(n_features=int(s.oversample * s.n_features), fast_threshold=s.sparse_fast_threshold, scale_factor=s.scale_factor, n_levels=s.n_levels)
+        kps, desc = orb.detectAndCompute(image, None)
     if desc is None or len(kps) == 0:
         return Keypoints(uv=np.zeros((0, 2)), descriptors=np.zeros((0, 32), np.uint8), octave=np.zeros(0, np.int32))
     uv = np.array([kp.pt for kp in kps], dtype=float)

@@ -35,3 +35,40 @@ def test_nearest_hamming_with_fewer_candidates_than_k_or_none() -> None:
     np.testing.assert_array_equal(dist, [32, 32, 32])
     for x, y in ((a[:0], b), (a, b[:0])):
         assert all(len(v) == 0 for v in nearest_hamming(x, y))
+
+
+def _faint_wall(contrast: int) -> np.ndarray:
+    """A near-uniform wall (grey 150, a little noise) with six rectangles `contrast` grey
+    levels darker: 24 corners."""
+    rng = np.random.default_rng(5)
+    image = np.clip(150.0 + rng.normal(0.0, 1.0, (480, 752)), 0, 255)
+    for k in range(6):
+        r, c = 60 + 150 * (k // 3), 80 + 220 * (k % 3)
+        image[r : r + 90, c : c + 120] -= contrast
+    return image.astype(np.uint8)
+
+
+def test_a_bare_image_is_searched_again_with_a_lower_fast_threshold() -> None:
+    """ORB-SLAM's fallback: a frame with few corners at the FAST threshold (10 grey levels)
+    is searched at the lower one, which finds the corners of faint marks (8 levels)."""
+    from backend.frontend.points import PointSettings, detect_points
+
+    image = _faint_wall(8)
+    plain = detect_points(image, settings=PointSettings(sparse_below=0))
+    found = detect_points(image, settings=PointSettings())
+    assert len(plain.uv) < 5
+    assert len(found.uv) >= 20
+    corners = np.array([(80 + 220 * (k % 3) + dc, 60 + 150 * (k // 3) + dr) for k in range(6) for dr in (0, 90) for dc in (0, 120)], float)
+    near = np.min(np.linalg.norm(found.uv[:, None] - corners[None], axis=2), axis=0)
+    assert np.count_nonzero(near < 3.0) >= 20  # the marks' corners, not noise
+
+
+def test_a_textured_image_keeps_the_usual_threshold() -> None:
+    from backend.frontend.points import PointSettings, detect_points
+
+    rng = np.random.default_rng(6)
+    image = (rng.random((480, 752)) * 255).astype(np.uint8)
+    a = detect_points(image, settings=PointSettings())
+    b = detect_points(image, settings=PointSettings(sparse_below=0))
+    np.testing.assert_array_equal(a.uv, b.uv)
+    np.testing.assert_array_equal(a.descriptors, b.descriptors)
