@@ -204,19 +204,20 @@ def track_frame(
         return best
     if lines is not None and len(lines.ids):
         starts = [(R, t)] + ([last_frame] if last_frame is not None else [])
-        aided = [refine_with_lines(camera, s, lines, R0, t0, P, D, kp, the_map=the_map) for R0, t0 in starts]
+        segments = lines.segments()  # once for every start
+        aided = [refine_with_lines(camera, s, lines, segments, R0, t0, P, D, kp, the_map=the_map) for R0, t0 in starts]
         best = max(aided, key=lambda a: a.inliers + a.line_inliers)
         if best.ok:
             return best
     return Tracked(R, t, np.full(len(ids), -1, np.int64), 0, False)
 
 
-def refine_with_lines(camera: PinholeCamera, s: TrackSettings, aid: LineAid, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, *, the_map: Map) -> Tracked:
+def refine_with_lines(camera: PinholeCamera, s: TrackSettings, aid: LineAid, segments: Segments, R: np.ndarray, t: np.ndarray, P: np.ndarray, D: np.ndarray, kp: Keypoints, *, the_map: Map) -> Tracked:
     """The pose from (R, t) against map points `P` (descriptors `D`) and the map lines of
-    `aid` together: both matched by projection (points within three times the search
-    radius, lines as at keyframes), refined with points and lines, outliers (off by more
-    than `outlier_px`) dropped, matched again around the refined pose and refined once more."""
-    segments = aid.segments()
+    `aid` seen as the frame's left `segments` together: both matched by projection (points
+    within three times the search radius, lines as at keyframes), refined with points and
+    lines, outliers (off by more than `outlier_px`) dropped, matched again around the
+    refined pose and refined once more."""
     m_world, v_world = the_map.lines.m[aid.ids], the_map.lines.v[aid.ids]
     p_match = match_by_projection(camera, R, t, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
     need = aid.min_inliers
@@ -231,10 +232,11 @@ def refine_with_lines(camera: PinholeCamera, s: TrackSettings, aid: LineAid, R: 
         p_ok = pixel_errors(camera, R, t, P[mp], kp.uv[p_match[mp]]) < s.outlier_px
         l_ok = line_errors(camera, R, t, m_world[ml], v_world[ml], seg_uv) < s.outlier_px
         if attempt == 0:
+            kept = np.full(len(P), -1, np.int64)
+            kept[mp[p_ok]] = p_match[mp[p_ok]]
             found = match_by_projection(camera, R, t, P, D, kp.uv, kp.descriptors, radius_px=s.refine_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
-            p_match = merge_matches(np.where(np.isin(np.arange(len(P)), mp[p_ok]), p_match, -1), found, n_keypoints=len(kp.uv))
-    p_match = p_match.copy()
-    p_match[mp[~p_ok]] = -1
+            p_match = merge_matches(kept, found, n_keypoints=len(kp.uv))
+    p_match[mp[~p_ok]] = -1  # p_match is merge_matches' own array here
     n_points, n_lines = int(np.count_nonzero(p_ok)), int(np.count_nonzero(l_ok))
     ok = n_points + n_lines >= need and n_lines >= aid.min_line_inliers
     if ok:
