@@ -22,6 +22,7 @@ import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
 
+from backend.common.blas import single_threaded_blas
 from backend.optim import sparse_schur
 from backend.optim.problem import Layout, Linearization, NormalBlocks, Problem, State
 
@@ -221,6 +222,7 @@ class SolveReport:
     linear_solver: str = ""
 
 
+@single_threaded_blas
 def optimize(
     problem: Problem,
     state: State | None = None,

@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 
+from backend.common.blas import single_threaded_blas
 from backend.common.timing import Stage
 from backend.eval import sequences
 from backend.mapping import coplanar
@@ -138,6 +139,7 @@ class SimEngine:
         self._window: Window | None = None
         self._last: Snapshot | None = None
 
+    @single_threaded_blas
     def step(self) -> Snapshot:
         s = self.settings
         k = self.keyframes

@@ -57,6 +57,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from backend.common.blas import single_threaded_blas
 from backend.common.timing import PER_FRAME_STAGES, Stage
 from backend.data.source import StereoSource
 from backend.frontend.lines import StereoSegments, stereo_segments
@@ -100,6 +101,7 @@ class StereoEngine(CoreEngine):
     def reset(self) -> None:
         self.core.reset()
 
+    @single_threaded_blas
     def step(self) -> Snapshot:
         s = self.settings
         t_start = time.perf_counter()

@@ -62,6 +62,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from backend.common.blas import single_threaded_blas
 from backend.common.timing import PER_FRAME_STAGES, Stage
 from backend.data.motion import ImuData
 from backend.data.source import InertialSource
@@ -147,6 +148,7 @@ class VioEngine(CoreEngine):
         self._disagreeing_run = 0  # frames in a row whose supported visual pose is far from the IMU's prediction
         self._restart_pose: tuple[np.ndarray, np.ndarray] | None = None  # after a detected failure: the new segment's first pose
 
+    @single_threaded_blas
     def step(self) -> Snapshot:
         s = self.settings
         t_start = time.perf_counter()
