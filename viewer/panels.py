@@ -16,6 +16,7 @@ from viewer import images
 #: Stage names of `OptimizationReport.timing_ms` as the report's timing table shows them.
 STAGE_LABELS = {
     "load": "reading images",
+    "load_wait": "waiting for images",
     "point_dm": "point D&M",
     "tracking": "tracking",
     "line_dm": "line D&M",

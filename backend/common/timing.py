@@ -9,6 +9,7 @@ import enum
 
 class Stage(enum.StrEnum):
     LOAD = "load"  # reading or rendering the images (not the pipeline's own time)
+    LOAD_WAIT = "load_wait"  # the part of LOAD the pipeline waited for (the rest overlapped with tracking: backend.pipeline.prefetch)
     POINT_DM = "point_dm"  # ORB detection and stereo matching of points (Table III "point D&M")
     TRACKING = "tracking"
     LINE_DM = "line_dm"  # LSD + LBD segments, stereo and map matching ("line D&M")
@@ -30,4 +31,4 @@ class Stage(enum.StrEnum):
 
 
 # Timed per frame within a step (averaged per frame); every other stage runs once per keyframe.
-PER_FRAME_STAGES: tuple[Stage, ...] = (Stage.POINT_DM, Stage.TRACKING, Stage.LOAD)
+PER_FRAME_STAGES: tuple[Stage, ...] = (Stage.POINT_DM, Stage.TRACKING, Stage.LOAD, Stage.LOAD_WAIT)

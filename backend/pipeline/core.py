@@ -36,6 +36,7 @@ from backend.optim.structure import HessianStructure, hessian_structure
 from backend.optim.variant import Variant
 from backend.pipeline.engine import EndOfSequence, EngineCheckpoint
 from backend.pipeline.overlay import draw_keyframe_image
+from backend.pipeline.prefetch import FramePrefetch, timed_prepare
 from backend.pipeline.snapshot import Detection, FrameTrajectory, KeyframeImage, OptimizationReport, Snapshot, Tracking, Trajectory, frozen
 from backend.pipeline.stages.culling import CullSettings, cull, local_map
 from backend.pipeline.stages.planes import FeatureStates, detect_planes, segment_keyframe
@@ -90,7 +91,7 @@ class PipelineCore:
         "new_point_kp",
         "line_seg_index",
     )
-    SHARED: tuple[str, ...] = ("data_source", "settings", "name", "segmenter", "camera", "on_frame", "plan", "last")
+    SHARED: tuple[str, ...] = ("data_source", "settings", "name", "segmenter", "camera", "on_frame", "plan", "last", "prefetch")
 
     # The last keyframe's, set by its steps (none before the first): the features' plane
     # states, each segmentation instance's plane, the keypoints that became new points and
@@ -109,6 +110,8 @@ class PipelineCore:
         self.camera = source.camera
         self.on_frame = on_frame
         self.plan = plan
+        point_settings = settings.points
+        self.prefetch = FramePrefetch(timed_prepare(source.rectified_pair, lambda left: detect_points(left, settings=point_settings)), n_frames=len(source), enabled=settings.read_ahead)
         self.reset()
 
     def reset(self) -> None:
@@ -142,21 +145,21 @@ class PipelineCore:
 
     def read_frame(self, timing: dict[str, float]) -> tuple[int, np.ndarray, np.ndarray, Keypoints]:
         """The next frame: its index, rectified pair and left ORB keypoints (reading and
-        detection times, ms, added to `timing`'s "load" and "point_dm"). Raises EndOfSequence."""
+        detection times, ms of the thread that did them, added to `timing`'s "load" and
+        "point_dm"; with `settings.read_ahead` the frame after it is read and detected on a
+        worker thread meanwhile). Raises EndOfSequence."""
         n = len(self.data_source)
         if self.next_frame >= n:
             raise EndOfSequence(f"{self.name}: all {n} frames processed")
         i = self.next_frame
+        frame = self.prefetch.take(i)
         self.next_frame += 1
-        t0 = time.perf_counter()
-        left, right = self.data_source.rectified_pair(i)
-        timing[Stage.LOAD] = timing.get(Stage.LOAD, 0.0) + 1e3 * (time.perf_counter() - t0)
+        timing[Stage.LOAD] = timing.get(Stage.LOAD, 0.0) + frame.load_ms
+        timing[Stage.LOAD_WAIT] = timing.get(Stage.LOAD_WAIT, 0.0) + frame.load_wait_ms
+        timing[Stage.POINT_DM] += frame.detect_ms
         if self.on_frame is not None:
             self.on_frame(i)
-        t0 = time.perf_counter()
-        kp = detect_points(left, settings=self.settings.points)
-        timing[Stage.POINT_DM] += 1e3 * (time.perf_counter() - t0)
-        return i, left, right, kp
+        return i, frame.left, frame.right, frame.keypoints
 
     def initial_pose(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """The first keyframe's `R_world_camera, t_world_camera`: its ground-truth pose where

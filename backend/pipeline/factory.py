@@ -18,6 +18,8 @@ import enum
 import pathlib
 from typing import TYPE_CHECKING, Any, cast
 
+import numpy as np
+
 from backend.data.source import ReaderOptions
 from backend.optim.variant import Variant
 
@@ -62,7 +64,11 @@ class EngineConfig:
     `DEFAULT_WINDOW`). `seed`: the scene's, its noise's and the RANSACs'. `segmenter`:
     None for the mode's default (stereo: geometric, VIO: learned); `segmenter_model`: the
     learned segmenter's model file (None: the shipped one). `reader`: what a dataset's reader
-    may need besides its path (a calibration file, topic names; `ReaderOptions`)."""
+    may need besides its path (a calibration file, topic names; `ReaderOptions`).
+    `preload`: every frame read (or rendered) into memory before the run, so that the run's
+    times leave out reading, as from a camera (benchmarks). `read_ahead`: the next frame
+    read and its keypoints detected while the current one is tracked (the outputs are the
+    same either way; off: one thread, for comparing)."""
 
     scene: str | None = None
     dataset: pathlib.Path | str | None = None
@@ -79,6 +85,8 @@ class EngineConfig:
     segmenter_model: pathlib.Path | None = None
     reader: ReaderOptions = ReaderOptions()
     interactive: bool = False
+    preload: bool = False
+    read_ahead: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "variant", Variant.parse(self.variant))
@@ -109,6 +117,24 @@ class FirstFrames:
         return getattr(self._source, name)
 
 
+class Preloaded:
+    """An image source with every rectified pair read into memory at construction
+    (everything else delegated to it): a run's times without reading or rendering."""
+
+    def __init__(self, source: object) -> None:
+        self._source = source
+        self._pairs = [source.rectified_pair(i) for i in range(len(source))]  # type: ignore[attr-defined, arg-type]
+
+    def __len__(self) -> int:
+        return len(self._pairs)
+
+    def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        return self._pairs[index]
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._source, name)
+
+
 def make_engine(config: EngineConfig) -> Engine:
     """The engine `config` describes (ValueError for a combination that cannot run;
     backend.data.errors.DatasetError for a bad dataset, one line; SegmenterError)."""
@@ -123,6 +149,8 @@ def make_engine(config: EngineConfig) -> Engine:
     source, name = _open_images(config)
     if config.frames is not None:
         source = FirstFrames(source, config.frames)
+    if config.preload:
+        source = Preloaded(source)
     segmenter = make_segmenter(_segmenter_kind(config), source=source, model=config.segmenter_model)
     if config.mode is Mode.VIO:
         from backend.pipeline.vio_engine import VioEngine, VioSettings
@@ -148,8 +176,8 @@ def _segmenter_kind(config: EngineConfig) -> SegmenterKind:
 
 def _stage_options(config: EngineConfig) -> dict[str, Any]:
     if config.interactive:
-        return {"skip_unused_stages": False, "hessian": True, "image_scale": 1.0}
-    return {"skip_unused_stages": True, "image_scale": None, "hessian": False}
+        return {"skip_unused_stages": False, "hessian": True, "image_scale": 1.0, "read_ahead": config.read_ahead}
+    return {"skip_unused_stages": True, "image_scale": None, "hessian": False, "read_ahead": config.read_ahead}
 
 
 def _open_images(config: EngineConfig) -> tuple[object, str]:

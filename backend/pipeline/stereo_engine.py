@@ -250,7 +250,7 @@ class StereoEngine(CoreEngine):
             t0 = time.perf_counter()
             image = c.draw(left, kp, status, segs, obs, masks, detection)
             timing[Stage.IMAGE] = 1e3 * (time.perf_counter() - t0)
-        total = 1e3 * (time.perf_counter() - t_start) - timing[Stage.LOAD] * frames_per  # reading or rendering images is not the pipeline's
+        total = 1e3 * (time.perf_counter() - t_start) - timing[Stage.LOAD_WAIT] * frames_per  # reading or rendering images is not the pipeline's
         timing[Stage.TOTAL] = total
         timing[Stage.TOTAL_PER_FRAME] = total / frames_per
         tracking = Tracking(

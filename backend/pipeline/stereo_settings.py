@@ -49,7 +49,9 @@ class StereoSettings:
     variants segment no planes (off in the debugger, so that every layer and the -wo | -r |
     -w comparison have data). `image_scale`: size of the keyframe image in snapshots
     (None: no image). `hessian`: put the window's Hessian structure in snapshots (the
-    debugger shows it; headless runs skip it)."""
+    debugger shows it; headless runs skip it). `read_ahead`: the next frame is read and
+    its ORB keypoints detected on a worker thread while the current one is tracked
+    (`backend.pipeline.prefetch`; the outputs are the same either way)."""
 
     variant: Variant = Variant.PL_W
     window: int = 10
@@ -84,6 +86,7 @@ class StereoSettings:
     skip_unused_stages: bool = False
     image_scale: float | None = 0.5
     hessian: bool = True
+    read_ahead: bool = True
     points: PointSettings = PointSettings()
     lines: LineSettings = LineSettings()
     coplanar: coplanar.CoplanarSettings = coplanar.CoplanarSettings()

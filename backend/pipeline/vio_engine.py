@@ -388,7 +388,7 @@ class VioEngine(CoreEngine):
             c.line_seg_index = np.arange(len(obs.line_id))
             image = c.draw(left, kp, status, segments if use_lines else None, obs, masks, detection)
             timing[Stage.IMAGE] = 1e3 * (time.perf_counter() - t0)
-        total = 1e3 * (time.perf_counter() - t_start) - timing[Stage.LOAD] * frames_per
+        total = 1e3 * (time.perf_counter() - t_start) - timing[Stage.LOAD_WAIT] * frames_per
         timing[Stage.TOTAL] = total
         timing[Stage.TOTAL_PER_FRAME] = total / frames_per
         tracking = Tracking(
