@@ -36,7 +36,7 @@ from backend.optim.structure import HessianStructure, hessian_structure
 from backend.optim.variant import Variant
 from backend.pipeline.engine import EndOfSequence, EngineCheckpoint
 from backend.pipeline.overlay import draw_keyframe_image
-from backend.pipeline.prefetch import FramePrefetch, timed_prepare
+from backend.pipeline.prefetch import FramePrefetch, PlaneJob, timed_prepare
 from backend.pipeline.snapshot import Detection, FrameTrajectory, KeyframeImage, OptimizationReport, Snapshot, Tracking, Trajectory, frozen
 from backend.pipeline.stages.culling import CullSettings, cull, local_map
 from backend.pipeline.stages.planes import FeatureStates, detect_planes, segment_keyframe
@@ -210,6 +210,12 @@ class PipelineCore:
         T_true = self.data_source.T_world_rect0[i] if bool(self.data_source.ground_truth_valid[i]) else None
         self.map.add_keyframe(i, R, t, stamp_ns=int(self.data_source.timestamps_ns[i]), T_world_true=T_true)
 
+    def start_segmentation(self, i: int, images: tuple[np.ndarray, np.ndarray]) -> PlaneJob:
+        """Frame i's plane segmentation of `images` (the segmenter's left and right) started on
+        a worker thread: it depends on the images alone, so the keyframe's points and lines
+        are matched meanwhile (`detect_and_solve` takes the result)."""
+        return PlaneJob.start(lambda: segment_keyframe(self.segmenter, i, *images, self.camera))
+
     def detect_and_solve(
         self,
         k: int,
@@ -220,10 +226,10 @@ class PipelineCore:
         rng: np.random.Generator,
         timing: dict[str, float],
         *,
-        images: tuple[np.ndarray, np.ndarray] | None,
+        planes: PlaneJob | None,
     ) -> tuple[PlaneMasks | None, Detection, OptimizationReport, HessianStructure | None]:
-        """Keyframe k (frame i) after its landmarks: plane segmentation of `images` (the
-        segmenter's left and right; None: no planes this keyframe) and co-planar detection,
+        """Keyframe k (frame i) after its landmarks: plane segmentation (`planes`, from
+        `start_segmentation`; None: no planes this keyframe) and co-planar detection,
         the window bundle adjustment, culling and the next local map (stage times, ms, into
         `timing`). Returns the masks (or None), the detection, the solver report and the
         Hessian image."""
@@ -231,10 +237,8 @@ class PipelineCore:
         detection = Detection((), (), (), (), ())
         self.det_state = FeatureStates.undetected(self.map, obs).as_tuple()
         timing[Stage.PLANE_SEG] = timing[Stage.PLANE_FIT] = 0.0
-        if images is not None:
-            t0 = time.perf_counter()
-            masks = segment_keyframe(self.segmenter, i, *images, self.camera)
-            timing[Stage.PLANE_SEG] = 1e3 * (time.perf_counter() - t0)
+        if planes is not None:
+            masks, timing[Stage.PLANE_SEG] = planes.result()
             t0 = time.perf_counter()
             found = detect_planes(self.map, obs, masks, new_points, new_lines, rng, settings=self.settings.coplanar)
             detection, self.det_state, self.instance_plane = found.detection, found.features.as_tuple(), found.instance_plane

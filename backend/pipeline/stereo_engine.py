@@ -199,7 +199,9 @@ class StereoEngine(CoreEngine):
         for stage in PER_FRAME_STAGES:
             timing[stage] = timing.get(stage, 0.0) / frames_per  # means per frame
 
-        # 1. Stereo points (the left ORB is there already), segments and their map matches.
+        # 1. Stereo points (the left ORB is there already), segments and their map matches;
+        # the plane segmentation (images only) meanwhile on the worker.
+        plane_job = c.start_segmentation(i, (left, right)) if use_planes else None
         t0 = time.perf_counter()
         stereo = stereo_points(left, right, camera=cam, settings=s.points, left_keypoints=kp)
         timing[Stage.POINT_DM] += 1e3 * (time.perf_counter() - t0) / frames_per
@@ -242,7 +244,7 @@ class StereoEngine(CoreEngine):
         timing[Stage.MAPPING] = 1e3 * (time.perf_counter() - t0)
 
         # 4. Plane segmentation and co-planar detection, 5. window bundle adjustment, 6. culling.
-        masks, detection, report, hessian = c.detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=(left, right) if use_planes else None)
+        masks, detection, report, hessian = c.detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, planes=plane_job)
         c.follow_keyframe(i, k)  # the motion model continues from the optimized keyframe pose
 
         image = None

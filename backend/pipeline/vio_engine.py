@@ -340,6 +340,8 @@ class VioEngine(CoreEngine):
         l_match = np.zeros(0, np.int64)
         local_l = c.local_lines
         timing[Stage.LINE_DM] = 0.0
+        # Monocular: the segmenter sees the left image only; it runs on the worker meanwhile.
+        plane_job = c.start_segmentation(i, (left, left)) if use_planes and k > self.map.segment_start else None
         if use_lines:
             t0 = time.perf_counter()
             segments = detect_segments(left, settings=s.lines)
@@ -363,9 +365,7 @@ class VioEngine(CoreEngine):
         c.last_kf_tracked = int(np.count_nonzero(p_match >= 0)) if k > self.map.segment_start + 1 else len(obs.point_id)  # map points tracked (new ones are not yet)
         timing[Stage.MAPPING] = 1e3 * (time.perf_counter() - t0)
 
-        # Monocular: the segmenter sees the left image only.
-        images = (left, left) if use_planes and k > self.map.segment_start else None
-        masks, detection, report, hessian = c.detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, images=images)
+        masks, detection, report, hessian = c.detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, planes=plane_job)
         if not self.inertial.initialized:
             start = StartContext(self.map, self.inertial, self.imu_model, self.inertial_source, self.settings, c.messages)
             self.start.try_initialize(k, start)
