@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 
 import cv2
+import numba
 import numpy as np
 
 from backend.geometry.camera import PinholeCamera
@@ -153,26 +154,53 @@ def nearest_hamming(desc_a: np.ndarray, desc_b: np.ndarray, *, k: int = 2) -> tu
 def best_matches(rows: np.ndarray, cols: np.ndarray, dist: np.ndarray, *, n_rows: int, max_distance: float, ratio: float) -> np.ndarray:
     """Match of each row (index of its column, -1: none) among candidate pairs (`rows`,
     `cols`) (P,) with distances `dist` (P,): the closest column if its distance is `<=
-    max_distance` and `< ratio` times the row's second closest candidate; then one-to-one
-    (a column keeps only its closest row)."""
-    out = np.full(n_rows, -1, dtype=np.int64)
+    max_distance` and `< ratio` times the row's second closest candidate (ties: the pair
+    given first is the closest, and the second closest is as close); then one-to-one (a
+    column keeps only its closest row; ties: the lower row). One compiled pass over the
+    pairs (`_best_matches_kernel`), as the candidates of a frame against the local map run
+    to tens of thousands."""
     if rows.size == 0:
-        return out
-    order = np.lexsort((dist, rows))
-    r, c, d = rows[order], cols[order], dist[order].astype(float)
-    first = np.ones(r.size, bool)
-    first[1:] = r[1:] != r[:-1]
-    head = np.flatnonzero(first)
-    second = np.full(head.size, np.inf)
-    has_second = ~np.append(first[1:], True)[head]  # the next pair is the same row's
-    second[has_second] = d[head[has_second] + 1]
-    ok = (d[head] <= max_distance) & (d[head] < ratio * second)
-    head = head[ok]
-    # One-to-one: per column, keep the row with the smallest distance.
-    by_col = head[np.lexsort((d[head], c[head]))]
-    keep = np.ones(by_col.size, bool)
-    keep[1:] = c[by_col][1:] != c[by_col][:-1]
-    out[r[by_col[keep]]] = c[by_col[keep]]
+        return np.full(n_rows, -1, dtype=np.int64)
+    rows_i = np.ascontiguousarray(rows, dtype=np.int64)
+    cols_i = np.ascontiguousarray(cols, dtype=np.int64)
+    d = np.ascontiguousarray(dist, dtype=np.float64)
+    return _best_matches_kernel(rows_i, cols_i, d, n_rows, int(cols_i.max()) + 1, float(max_distance), float(ratio))
+
+
+@numba.njit(cache=True, nogil=True)
+def _best_matches_kernel(rows, cols, dist, n_rows, n_cols, max_distance, ratio):  # pragma: no cover - compiled
+    best = np.full(n_rows, np.inf)
+    second = np.full(n_rows, np.inf)
+    best_col = np.full(n_rows, -1, np.int64)
+    finite = np.zeros(n_rows, np.int64)
+    has_nan = np.zeros(n_rows, np.bool_)
+    for p in range(rows.size):
+        r = rows[p]
+        d = dist[p]
+        if d != d:  # NaN: sorted after every distance
+            has_nan[r] = True
+            continue
+        finite[r] += 1
+        if d < best[r] or best_col[r] < 0:
+            second[r] = best[r]
+            best[r] = d
+            best_col[r] = cols[p]
+        elif d < second[r]:
+            second[r] = d
+    col_row = np.full(n_cols, -1, np.int64)
+    for r in range(n_rows):
+        if finite[r] == 0 or (finite[r] == 1 and has_nan[r]):  # no candidate, or a NaN second: the ratio test fails
+            continue
+        if not (best[r] <= max_distance and best[r] < ratio * second[r]):
+            continue
+        c = best_col[r]
+        held = col_row[c]
+        if held < 0 or best[r] < best[held]:
+            col_row[c] = r
+    out = np.full(n_rows, -1, np.int64)
+    for c in range(n_cols):
+        if col_row[c] >= 0:
+            out[col_row[c]] = c
     return out
 
 

@@ -72,3 +72,42 @@ def test_a_textured_image_keeps_the_usual_threshold() -> None:
     b = detect_points(image, settings=PointSettings(sparse_below=0))
     np.testing.assert_array_equal(a.uv, b.uv)
     np.testing.assert_array_equal(a.descriptors, b.descriptors)
+
+
+def _best_matches_by_sorting(rows: np.ndarray, cols: np.ndarray, dist: np.ndarray, *, n_rows: int, max_distance: float, ratio: float) -> np.ndarray:
+    """The definition, by sorting (the implementation before the compiled pass)."""
+    out = np.full(n_rows, -1, dtype=np.int64)
+    if rows.size == 0:
+        return out
+    order = np.lexsort((dist, rows))
+    r, c, d = rows[order], cols[order], dist[order].astype(float)
+    first = np.ones(r.size, bool)
+    first[1:] = r[1:] != r[:-1]
+    head = np.flatnonzero(first)
+    second = np.full(head.size, np.inf)
+    has_second = ~np.append(first[1:], True)[head]
+    second[has_second] = d[head[has_second] + 1]
+    ok = (d[head] <= max_distance) & (d[head] < ratio * second)
+    head = head[ok]
+    by_col = head[np.lexsort((d[head], c[head]))]
+    keep = np.ones(by_col.size, bool)
+    keep[1:] = c[by_col][1:] != c[by_col][:-1]
+    out[r[by_col[keep]]] = c[by_col[keep]]
+    return out
+
+
+def test_best_matches_is_the_sorted_definition_with_ties_and_nan() -> None:
+    """The compiled pass gives what sorting the pairs gives, ties and NaN distances included
+    (Hamming distances tie often; the flow follower's pixel distances are floats)."""
+    rng = np.random.default_rng(11)
+    for trial in range(300):
+        n_rows, n_cols, P = int(rng.integers(1, 40)), int(rng.integers(1, 40)), int(rng.integers(1, 400))
+        rows, cols = rng.integers(0, n_rows, P), rng.integers(0, n_cols, P)
+        if trial % 2:
+            dist = rng.integers(0, 12, P).astype(np.int32)  # many ties
+        else:
+            dist = rng.integers(0, 20, P) + rng.random(P).round(1)
+            dist[rng.random(P) < 0.1] = np.nan
+        for max_distance, ratio in ((8, 0.9), (15, 1.01), (30, 0.7)):
+            expected = _best_matches_by_sorting(rows, cols, dist, n_rows=n_rows, max_distance=max_distance, ratio=ratio)
+            np.testing.assert_array_equal(best_matches(rows, cols, dist, n_rows=n_rows, max_distance=max_distance, ratio=ratio), expected, err_msg=f"trial {trial}")
