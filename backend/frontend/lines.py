@@ -21,6 +21,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+from backend.common.workers import per_thread, submit
 from backend.frontend.points import best_matches, hamming_distances
 from backend.geometry.camera import PinholeCamera
 
@@ -92,10 +93,6 @@ class StereoSegments:
         return self.right_index >= 0
 
 
-_LSD_CACHE: dict[float, cv2.LineSegmentDetector] = {}
-_LBD: list[cv2.line_descriptor.BinaryDescriptor] = []
-
-
 def _keyline(index: int, start: np.ndarray, end: np.ndarray) -> cv2.line_descriptor.KeyLine:
     """An octave-0 KeyLine for an external segment (what LBD's `compute` reads)."""
     kl = cv2.line_descriptor.KeyLine()
@@ -116,9 +113,8 @@ def _keyline(index: int, start: np.ndarray, end: np.ndarray) -> cv2.line_descrip
 def detect_segments(image: np.ndarray, *, settings: LineSettings = LineSettings()) -> Segments:
     """LSD segments of a uint8 grey image (H, W) with their LBD descriptors."""
     s = settings
-    if s.lsd_scale not in _LSD_CACHE:
-        _LSD_CACHE[s.lsd_scale] = cv2.createLineSegmentDetector(cv2.LSD_REFINE_NONE, s.lsd_scale)
-    found = _LSD_CACHE[s.lsd_scale].detect(image)[0]
+    lsd = per_thread(("lsd", s.lsd_scale), lambda: cv2.createLineSegmentDetector(cv2.LSD_REFINE_NONE, s.lsd_scale))  # keeps its working images: one per thread
+    found = lsd.detect(image)[0]
     seg = np.zeros((0, 4)) if found is None else found[:, 0, :].astype(float)
     length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
     keep = np.flatnonzero(length >= s.min_length_px)
@@ -132,9 +128,8 @@ def detect_segments(image: np.ndarray, *, settings: LineSettings = LineSettings(
     seg[flip] = seg[flip][:, [2, 3, 0, 1]]
     if len(seg) == 0:
         return Segments(start=np.zeros((0, 2)), end=np.zeros((0, 2)), descriptors=np.zeros((0, 32), np.uint8))
-    if not _LBD:
-        _LBD.append(cv2.line_descriptor.BinaryDescriptor_createBinaryDescriptor())  # type: ignore[attr-defined]  # not in OpenCV's stubs
-    keylines, desc = _LBD[0].compute(image, [_keyline(i, a[:2], a[2:]) for i, a in enumerate(seg)])
+    lbd = per_thread("lbd", cv2.line_descriptor.BinaryDescriptor_createBinaryDescriptor)  # type: ignore[attr-defined]  # not in OpenCV's stubs
+    keylines, desc = lbd.compute(image, [_keyline(i, a[:2], a[2:]) for i, a in enumerate(seg)])
     index = np.array([kl.class_id for kl in keylines], dtype=int)  # compute may drop lines
     seg = seg[index]
     return Segments(start=seg[:, :2].copy(), end=seg[:, 2:].copy(), descriptors=np.asarray(desc, np.uint8).reshape(-1, 32))
@@ -182,8 +177,11 @@ def match_stereo_segments(left: Segments, right: Segments, *, camera: PinholeCam
 
 
 def stereo_segments(left: np.ndarray, right: np.ndarray, *, camera: PinholeCamera, settings: LineSettings = LineSettings()) -> StereoSegments:
-    """Detect, describe, match and triangulate segments of a rectified uint8 pair (H, W)."""
-    return match_stereo_segments(detect_segments(left, settings=settings), detect_segments(right, settings=settings), camera=camera, settings=settings)
+    """Detect, describe, match and triangulate segments of a rectified uint8 pair (H, W)
+    (the right image's segments on a worker thread meanwhile: the same segments)."""
+    right_segments = submit(lambda: detect_segments(right, settings=settings))
+    left_segments = detect_segments(left, settings=settings)
+    return match_stereo_segments(left_segments, right_segments.result(), camera=camera, settings=settings)
 
 
 def match_segments_temporal(previous: Segments, current: Segments, *, settings: LineSettings = LineSettings()) -> np.ndarray:

@@ -20,11 +20,11 @@ import threading
 import time
 import weakref
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
-from typing import ClassVar
+from concurrent.futures import Future
 
 import numpy as np
 
+from backend.common import workers
 from backend.frontend.points import Keypoints
 from backend.frontend.segmentation import PlaneMasks
 
@@ -162,30 +162,22 @@ def timed_prepare(read: Callable[[int], tuple[np.ndarray, np.ndarray]], detect: 
 
 
 class PlaneJob:
-    """A keyframe's plane segmentation running on the shared worker while the keyframe's
-    points and lines are matched: it reads the images alone (never the map), so its masks
-    are those of running it in place. `result()` waits and returns the masks and the
-    segmentation's own time (ms); it raises the segmenter's error."""
-
-    _executor: ClassVar[ThreadPoolExecutor | None] = None
-    _executor_lock: ClassVar[threading.Lock] = threading.Lock()
+    """A keyframe's plane segmentation running on a worker (`backend.common.workers`) while
+    the keyframe's points and lines are matched: it reads the images alone (never the map),
+    so its masks are those of running it in place. `result()` waits and returns the masks and
+    the segmentation's own time (ms); it raises the segmenter's error."""
 
     def __init__(self, future: Future[tuple[PlaneMasks, float]]) -> None:
         self._future = future
 
     @classmethod
     def start(cls, segment: Callable[[], PlaneMasks]) -> PlaneJob:
-        with cls._executor_lock:
-            if cls._executor is None:
-                cls._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="coplanar-planes")
-            executor = cls._executor
-
         def timed() -> tuple[PlaneMasks, float]:
             t0 = time.perf_counter()
             masks = segment()
             return masks, 1e3 * (time.perf_counter() - t0)
 
-        return cls(executor.submit(timed))
+        return cls(workers.submit(timed))
 
     def result(self) -> tuple[PlaneMasks, float]:
         return self._future.result()
