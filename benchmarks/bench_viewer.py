@@ -79,9 +79,11 @@ def _summary(values: list[float]) -> str:
     return f"median {statistics.median(v):.1f} ms, p90 {v[int(0.9 * (len(v) - 1))]:.1f} ms, min {v[0]:.1f}, max {v[-1]:.1f} (n={len(v)})"
 
 
-def _clicks(page, n: int) -> tuple[list[float], list[float]]:
+def _clicks(page, n: int, *, pause_ms: float = 0.0) -> tuple[list[float], list[float]]:
     updated, rendered = [], []
     for _ in range(n):
+        if pause_ms > 0:
+            page.wait_for_timeout(pause_ms)  # the user looks at the keyframe before the next click
         a, b = page.evaluate(_CLICK_JS)
         updated.append(a)
         rendered.append(b)
@@ -111,7 +113,7 @@ def bench_latency(browser, args: argparse.Namespace) -> None:
         queued: list[float] = []
         flushed: list[float] = []
         put, draw = debugger._commands.put, debugger.scene.draw
-        debugger._commands.put = lambda item, *a, **k: (queued.append(time.perf_counter()), put(item, *a, **k))[1]
+        debugger._commands.put = lambda item, *a, **k: (queued.append(time.perf_counter()) if item == "step" else None, put(item, *a, **k))[1]
 
         def timed_draw(snapshot, **options):
             draw(snapshot, **options)
@@ -123,16 +125,16 @@ def bench_latency(browser, args: argparse.Namespace) -> None:
         _clicks(page, 3)  # warm the page
         queued.clear()
         flushed.clear()
-        n0 = debugger.engine.keyframes
-        updated, rendered = _clicks(page, args.clicks)
+        n0 = debugger.session.keyframes
+        updated, rendered = _clicks(page, args.clicks, pause_ms=args.pause)
         server = [1e3 * (b - a) for a, b in zip(queued, flushed)]
-        totals = [debugger.history[i].report.timing_ms["total"] for i in range(n0 - debugger.engine.keyframes, 0)]
+        totals = [debugger.history[i].report.timing_ms["total"] for i in range(n0 - debugger.session.keyframes, 0)]
         what = "rendered room (stereo pipeline)" if args.scene == "room" else f"sequence {args.sequence}"
-        print(f"{what}, window {debugger.engine.settings.window}, after {args.warmup} keyframes, page {args.width}x{args.height}:")
+        print(f"{what}, window {debugger.engine.settings.window}, after {args.warmup} keyframes, page {args.width}x{args.height}, {args.pause:g} ms between clicks:")
         print(f"  click -> scene received:  {_summary(updated)}")
         print(f"  click -> next frame:      {_summary(rendered)}")
         print(f"  server: click -> sent:    {_summary(server)}")
-        print(f"  of which engine step:     {_summary(totals)}")
+        print(f"  engine step (computed ahead while idle, or after the click): {_summary(totals)}")
     finally:
         debugger.stop()
 
@@ -205,6 +207,7 @@ def main() -> None:
     parser.add_argument("--sequence", choices=("a", "b"), default="a")
     parser.add_argument("--warmup", type=int, default=30)
     parser.add_argument("--clicks", type=int, default=30)
+    parser.add_argument("--pause", type=float, default=0.0, help="latency: ms between a scene received and the next click (0: at once; the debugger computes the next step while the user looks)")
     parser.add_argument("--points", type=int, default=100_000)
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--steps", type=int, default=1000)

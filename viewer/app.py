@@ -25,7 +25,7 @@ from backend.export.output_frame import TrajectoryFrame, output_frame
 from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter
 from backend.optim.variant import Variant
 from backend.pipeline.engine import EndOfSequence, Engine
-from backend.pipeline.snapshot import Snapshot
+from backend.pipeline.snapshot import FrameTrajectory, Snapshot
 from viewer import exports
 from viewer.access import AccessSettings
 from viewer.commands import Command
@@ -56,7 +56,7 @@ class Debugger:
         self.port = self.server.get_port()
         self.session = Session(engine, keep=settings.history)
         self._shown: Snapshot | None = None
-        self.worker = Worker(self._execute, period=lambda: 1.0 / max(self.rate.value, 1e-3), failed=self._failed, done=self._idle)
+        self.worker = Worker(self._execute, period=lambda: 1.0 / max(self.rate.value, 1e-3), failed=self._failed, done=self._idle, idle=self.session.wants_ahead)
         self._commands, self._playing = self.worker.commands, self.worker.playing  # (tests and benchmarks reach them)
         self.steps_done = 0
         self._play_times: collections.deque[float] = collections.deque(maxlen=8)
@@ -129,8 +129,14 @@ class Debugger:
 
     def _execute(self, command: Command, arg: Any) -> None:
         """Run `command` (on the worker's thread); `arg` as its sender gave it (a name, a
-        number or an enum member), converted here."""
-        if command is Command.STEP:
+        number or an enum member), converted here. A command that changes what the next step
+        would be, or reads the engine's newest state, first puts aside the step computed
+        ahead (viewer/session.py)."""
+        if command not in (Command.STEP, Command.SHOW, Command.WAKE, Command.AHEAD):
+            self.session.cancel_ahead()
+        if command is Command.AHEAD:
+            self.session.step_ahead()
+        elif command is Command.STEP:
             self._step()
         elif command is Command.VARIANT:
             self._switch_variant(Variant.parse(arg))
@@ -338,7 +344,14 @@ class Debugger:
         snapshot = self._shown
         is_newest = snapshot is not None and snapshot.keyframe == self.history.newest_keyframe
         frame = output_frame(getattr(self.engine, "data_source", None), choice=TrajectoryFrame.TRUTH)
-        exports.export(client, what, snapshot, frame_trajectory=getattr(self.engine, "frame_trajectory", None), is_newest=is_newest, frame=frame)
+        has_frames = hasattr(self.engine, "frame_trajectory")
+        exports.export(client, what, snapshot, frame_trajectory=self._frame_trajectory if has_frames else None, is_newest=is_newest, frame=frame)
+
+    def _frame_trajectory(self) -> FrameTrajectory:
+        """Every frame's pose up to the newest keyframe stepped (not one computed ahead)."""
+        trajectory = self.session.frame_trajectory()
+        assert trajectory is not None  # asked only of engines that have one
+        return trajectory
 
     # ------------------------------------------------------------------ control
 

@@ -29,6 +29,7 @@ class Command(enum.StrEnum):
     COMPARE = "compare"
     SEGMENTER = "segmenter"
     WAKE = "wake"
+    AHEAD = "ahead"  # the worker's own: compute the next step while idle (viewer/session.py)
     STOP = "stop"
 
 

@@ -1,8 +1,17 @@
 """What the debugger keeps of a run, apart from the screen: the engine, its snapshots per
 keyframe and variant (`SnapshotHistory`), the engine's checkpoints at the newest keyframe
-(after its step, and after each variant's re-optimization there), and the A/B run, a second
-engine on the same input in lockstep with its snapshots. Everything here runs on the
-debugger's worker thread; it decides, the debugger shows."""
+(after its step, and after each variant's re-optimization there), the A/B run, a second
+engine on the same input in lockstep with its snapshots, and the next step computed ahead.
+
+Stepping ahead: while the user looks at a keyframe, the worker computes the next one
+(`step_ahead`) from a checkpoint of the engine(s), so that Step only has to show it. The
+step is kept aside, not in the history; Step takes it; anything else that changes what the
+next step would be (another variant, the A/B run, the segmenter, Reset) or reads the
+engine's newest state (the -wo | -r | -w comparison) first puts the engines back where they
+were (`cancel_ahead`). The engine's results do not depend on when a step is computed, so
+what Step shows is what it would have computed then.
+
+Everything here runs on the debugger's worker thread; it decides, the debugger shows."""
 
 from __future__ import annotations
 
@@ -12,8 +21,23 @@ from collections.abc import Callable
 
 from backend.optim.variant import VARIANTS, Variant
 from backend.pipeline.engine import EndOfSequence, Engine, EngineCheckpoint
-from backend.pipeline.snapshot import Snapshot
+from backend.pipeline.snapshot import FrameTrajectory, Snapshot
 from viewer.history import SnapshotHistory
+
+
+@dataclasses.dataclass(frozen=True)
+class _Ahead:
+    """A step computed ahead: its result (A's snapshot, B's or None, why B stopped, or
+    `ended`: A had no next keyframe), the engines' checkpoints before it, and A's frame
+    trajectory before it (what an export of the newest keyframe shows)."""
+
+    snapshot: Snapshot | None
+    other: Snapshot | None
+    b_stopped: str
+    ended: EndOfSequence | None
+    before: EngineCheckpoint
+    before_b: EngineCheckpoint | None
+    frame_trajectory: FrameTrajectory | None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,31 +60,103 @@ class Session:
         self._states: dict[object, EngineCheckpoint] = {}
         self.engine_b: Engine | None = None
         self.history_b: dict[int, Snapshot] = {}
+        self._ahead: _Ahead | None = None
+        self._ahead_failed = False  # the last step ahead raised: the next Step meets the error in place
 
     @property
     def can_checkpoint(self) -> bool:
         return hasattr(self.engine, "checkpoint")
 
+    @property
+    def keyframes(self) -> int:
+        """Keyframes stepped (not counting one computed ahead)."""
+        return self.history.newest_keyframe + 1 if self.history else 0
+
+    @property
+    def has_ahead(self) -> bool:
+        return self._ahead is not None
+
+    def wants_ahead(self) -> bool:
+        """Whether a step ahead would be computed now (none kept, the engine can be put back)."""
+        return self._ahead is None and not self._ahead_failed and self.can_checkpoint
+
+    def step_ahead(self) -> None:
+        """Compute the next step aside (module docstring). It raises nothing: the end of the
+        sequence is kept for the Step that follows, and after an error the engines are put
+        back, so that the Step meets it again in place."""
+        if not self.wants_ahead():
+            return
+        before = self.engine.checkpoint()
+        before_b = self.engine_b.checkpoint() if self.engine_b is not None else None
+        trajectory = self.frame_trajectory()
+        try:
+            snapshot, other, why = self._advance()
+        except EndOfSequence as end:
+            self._ahead = _Ahead(None, None, "", end, before, before_b, trajectory)
+            return
+        except Exception:  # met again by the Step that follows, where the user sees it
+            self._restore(before, before_b)
+            self._ahead_failed = True
+            return
+        self._ahead = _Ahead(snapshot, other, why, None, before, before_b, trajectory)
+
+    def cancel_ahead(self) -> None:
+        """The engines back to where the last Step left them (no step kept aside)."""
+        ahead, self._ahead = self._ahead, None
+        self._ahead_failed = False
+        if ahead is not None:
+            self._restore(ahead.before, ahead.before_b)
+
+    def frame_trajectory(self) -> FrameTrajectory | None:
+        """The engine's frame trajectory up to the newest keyframe stepped (None: it has none)."""
+        ahead = self._ahead
+        if ahead is not None:
+            return ahead.frame_trajectory
+        method = getattr(self.engine, "frame_trajectory", None)
+        return method() if method is not None else None
+
     def step(self) -> Stepped:
-        """One keyframe (both engines of an A/B run); EndOfSequence when A has no more."""
-        snapshot = self.engine.step()
-        other, why = None, ""
-        if self.engine_b is not None:
-            try:
-                other = self.engine_b.step()
-                self._keep_b(other)
-            except EndOfSequence:
-                self.stop_ab()
-                why = "B reached the end of the sequence"
+        """One keyframe (both engines of an A/B run); EndOfSequence when A has no more. The
+        step computed ahead, if any, is taken."""
+        ahead, self._ahead = self._ahead, None
+        self._ahead_failed = False
+        if ahead is not None:
+            if ahead.ended is not None:
+                raise ahead.ended
+            assert ahead.snapshot is not None
+            snapshot, other, why = ahead.snapshot, ahead.other, ahead.b_stopped
+        else:
+            snapshot, other, why = self._advance()
+        if other is not None:
+            self._keep_b(other)
+        if why:
+            self.stop_ab()
         self._states_keyframe = None
         self._states = {}
         self.history.add_step(snapshot)
         return Stepped(snapshot, other, why)
 
+    def _advance(self) -> tuple[Snapshot, Snapshot | None, str]:
+        """The engines' next step, nothing kept (EndOfSequence when A has no more)."""
+        snapshot = self.engine.step()
+        other, why = None, ""
+        if self.engine_b is not None:
+            try:
+                other = self.engine_b.step()
+            except EndOfSequence:
+                why = "B reached the end of the sequence"
+        return snapshot, other, why
+
+    def _restore(self, before: EngineCheckpoint, before_b: EngineCheckpoint | None) -> None:
+        self.engine.restore(before)
+        if self.engine_b is not None and before_b is not None:
+            self.engine_b.restore(before_b)
+
     def switch_variant(self, variant: Variant, *, busy: Callable[[str], None]) -> Snapshot | None:
         """`variant` at the newest keyframe: its kept result, or the window re-optimized with
         it from the state the step left (`busy` says so first). None before the first step:
         the engine then uses it from the first step."""
+        self.cancel_ahead()
         if not self.history:
             self.engine.set_variant(variant)
             return None
@@ -94,6 +190,7 @@ class Session:
     def start_ab(self, variant: Variant) -> None:
         """B: a copy of the engine from its state now, with `variant` (its window re-optimized
         at once when there is a keyframe). The engine must be able to checkpoint."""
+        self.cancel_ahead()
         engine_b = copy.copy(self.engine)
         engine_b.restore(self.engine.checkpoint())
         engine_b.set_variant(variant)
@@ -103,6 +200,7 @@ class Session:
             self._keep_b(engine_b.reoptimize())
 
     def stop_ab(self) -> None:
+        self.cancel_ahead()
         self.engine_b = None
         self.history_b = {}
 
@@ -112,6 +210,7 @@ class Session:
 
     def reset(self) -> None:
         """The engine back to the start; nothing kept, no A/B run."""
+        self.cancel_ahead()
         self.engine.reset()
         self.history.clear()
         self.stop_ab()

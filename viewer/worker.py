@@ -22,7 +22,10 @@ class Worker:
     a Step every `period()` seconds while `playing` is set and no command comes. After
     every command it calls `done()`; a command that raises is logged, stops playing and is
     handed to `failed(command, error)` first. `working` is set while a command runs and
-    `worked_at` is when the last one ended (the plot thread waits for a pause)."""
+    `worked_at` is when the last one ended (the plot thread waits for a pause). When a
+    command has run, no other waits and `idle()` says so, the worker queues its own
+    `Command.AHEAD` (the next step computed ahead; skipped if a command comes first), so
+    `wait_idle` also waits for it."""
 
     def __init__(
         self,
@@ -31,6 +34,7 @@ class Worker:
         period: Callable[[], float],
         failed: Callable[[Command, Exception], None],
         done: Callable[[], None],
+        idle: Callable[[], bool] | None = None,
     ) -> None:
         self.commands = CommandQueue()
         self.playing = threading.Event()
@@ -40,6 +44,7 @@ class Worker:
         self._period = period
         self._failed = failed
         self._done = done
+        self._idle = idle
         self._stopped = threading.Event()
         self._thread = threading.Thread(target=self._run, name="coplanar-engine", daemon=True)
 
@@ -73,6 +78,9 @@ class Worker:
                 from_timer = True
             if command is Command.STOP:
                 return
+            if command is Command.AHEAD and (self.playing.is_set() or self.commands.pending()):
+                self.commands.task_done()  # a command came meanwhile: it goes first
+                continue
             self.working.set()
             try:
                 self._execute(command, arg)
@@ -81,8 +89,11 @@ class Worker:
                 self.playing.clear()
                 self._failed(command, exc)
             finally:
-                self._done()
+                if command is not Command.AHEAD:
+                    self._done()
                 self.worked_at = time.monotonic()
                 self.working.clear()
+                if command is not Command.AHEAD and not self.playing.is_set() and self._idle is not None and not self.commands.pending() and self._idle():
+                    self.commands.put(Command.AHEAD)  # before task_done: wait_idle waits for it too
                 if not from_timer:
                     self.commands.task_done()

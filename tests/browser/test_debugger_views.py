@@ -135,7 +135,7 @@ def test_ab_run_draws_both_trajectories_and_fills_the_difference(browser, tmp_pa
         for k in (20, 21, 22):
             page.get_by_role("button", name="Step").click()
             wait_shown(page, f"{k} (PL-w)")
-        assert debugger.engine_b.keyframes == debugger.engine.keyframes == 23
+        assert debugger.session.keyframes == 23 and debugger.engine_b.keyframes == debugger.engine.keyframes
         assert "/ab/trajectory" in debugger.scene._handles
         page.get_by_role("tab", name="Variants").click()
         page.get_by_text(re.compile("A/B run at keyframe 22")).first.wait_for()
