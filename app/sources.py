@@ -147,6 +147,9 @@ def engine_config(args: argparse.Namespace, *, headless: bool) -> EngineConfig:
         raise UsageError(f"--window {args.window}: must be at least 2")
     if getattr(args, "history", 1) < 1:
         raise UsageError(f"--history {args.history}: must be at least 1")
+    history_mb = getattr(args, "history_mb", 1.0)
+    if not history_mb > 0 or history_mb == float("inf"):
+        raise UsageError(f"--history-mb {history_mb}: must be a positive number of MiB")
     frames = getattr(args, "frames", None)
     if frames is not None and frames < 1:
         raise UsageError(f"--frames {frames}: must be at least 1")

@@ -90,14 +90,14 @@ def _clicks(page, n: int, *, pause_ms: float = 0.0) -> tuple[list[float], list[f
     return updated, rendered
 
 
-def _room_debugger():
+def _room_debugger(*, duration_s: float | None = None):
     """The debugger on the stereo pipeline over the rendered room (as `coplanar serve`)."""
     from app.serve_command import DEFAULT_DURATION_S
     from backend.pipeline.factory import EngineConfig, make_engine
     from tests.browser.conftest import free_port
     from viewer.app import Debugger
 
-    engine = make_engine(EngineConfig(scene="room", duration_s=DEFAULT_DURATION_S, interactive=True))
+    engine = make_engine(EngineConfig(scene="room", duration_s=duration_s or DEFAULT_DURATION_S, interactive=True))
     debugger = Debugger(engine, port=free_port())
     debugger.server.scene.configure_environment_map(hdri=None)
     return debugger
@@ -182,18 +182,25 @@ def bench_points(browser, args: argparse.Namespace) -> None:
 def bench_memory(browser, args: argparse.Namespace) -> None:
     import gc
 
-    debugger = start_debugger(sequence="a")
+    if args.scene == "room":  # long enough for --steps keyframes (about 7 frames each at 20 Hz)
+        debugger = _room_debugger(duration_s=max(60.0, 0.4 * args.steps))
+    else:
+        debugger = start_debugger(sequence=args.sequence)
     try:
         page = open_page(browser, debugger)
-        print(f"{'steps':>6s} {'RSS MiB':>8s} {'history':>8s} {'s/100 steps':>11s}")
+        every = f", every variant at every {args.variants_every}th keyframe" if args.variants_every else ""
+        print(f"{args.scene}{every}, history cap {debugger.session.history.capacity} keyframes / {debugger.session.history.max_bytes / 2**20:.0f} MiB")
+        print(f"{'steps':>6s} {'RSS MiB':>8s} {'history':>8s} {'kept MiB':>8s} {'s/100 steps':>11s}")
         print(f"{0:6d} {_rss_mib():8.1f} {0:8d}")
         t0 = time.perf_counter()
         for done in range(100, args.steps + 1, 100):
-            for _ in range(100):
+            for i in range(done - 100, done):
                 debugger.submit("step")
-            debugger.wait_idle(timeout=600)
+                if args.variants_every and i % args.variants_every == 0:
+                    debugger.submit("all_variants")
+            debugger.wait_idle(timeout=1200)
             gc.collect()
-            print(f"{done:6d} {_rss_mib():8.1f} {len(debugger.history):8d} {time.perf_counter() - t0:11.1f}", flush=True)
+            print(f"{done:6d} {_rss_mib():8.1f} {len(debugger.history):8d} {debugger.session.history.bytes / 2**20:8.1f} {time.perf_counter() - t0:11.1f}", flush=True)
             t0 = time.perf_counter()
         wait_shown(page, f"{args.steps - 1} (PL-w)")
     finally:
@@ -203,10 +210,11 @@ def bench_memory(browser, args: argparse.Namespace) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("which", choices=("latency", "points", "memory"))
-    parser.add_argument("--scene", choices=("mc-a", "room"), default="mc-a", help="latency: Monte-Carlo sequence (--sequence) or the rendered room")
+    parser.add_argument("--scene", choices=("mc-a", "room"), default="mc-a", help="latency, memory: Monte-Carlo sequence (--sequence) or the rendered room")
     parser.add_argument("--sequence", choices=("a", "b"), default="a")
     parser.add_argument("--warmup", type=int, default=30)
     parser.add_argument("--clicks", type=int, default=30)
+    parser.add_argument("--variants-every", type=int, default=0, help="memory: compute every variant at every N-th keyframe (0: never)")
     parser.add_argument("--pause", type=float, default=0.0, help="latency: ms between a scene received and the next click (0: at once; the debugger computes the next step while the user looks)")
     parser.add_argument("--points", type=int, default=100_000)
     parser.add_argument("--repeats", type=int, default=10)

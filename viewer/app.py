@@ -54,7 +54,7 @@ class Debugger:
         # it, with checked values (viewer/guard.py).
         self.server, self.guard = start_server(host=host, port=port, access=access, label="coplanar")
         self.port = self.server.get_port()
-        self.session = Session(engine, keep=settings.history)
+        self.session = Session(engine, keep=settings.history, max_bytes=int(settings.history_mb * 2**20))
         self._shown: Snapshot | None = None
         self.worker = Worker(self._execute, period=lambda: 1.0 / max(self.rate.value, 1e-3), failed=self._failed, done=self._idle, idle=self.session.wants_ahead)
         self._commands, self._playing = self.worker.commands, self.worker.playing  # (tests and benchmarks reach them)

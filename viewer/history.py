@@ -4,28 +4,111 @@ A step adds the keyframe's first snapshot (the variant it was stepped with). Swi
 variant at the newest keyframe re-optimizes the same window from the state the step left
 (an engine checkpoint) and adds that variant's snapshot beside the first: every variant at
 a keyframe starts from the same input, and returning to a variant shows its kept result
-instead of re-optimizing an already changed state. At most `capacity` keyframes are kept
-(oldest dropped first).
+instead of re-optimizing an already changed state. At most `capacity` keyframes are kept,
+and at most `max_bytes` of their arrays (oldest keyframes dropped first; the newest is
+always kept). The bytes are those of the distinct array buffers the kept snapshots hold:
+snapshots share arrays (a trajectory's prefix, unchanged landmarks), and a shared buffer
+counts once (`ArrayLedger`).
 """
 
 from __future__ import annotations
 
 import collections
+import dataclasses
+from collections.abc import Iterator
+
+import numpy as np
 
 from backend.optim.variant import Variant
 from backend.pipeline.snapshot import Snapshot
+
+DEFAULT_MAX_BYTES = 300 * 2**20
+
+
+def arrays_of(value: object, *, _depth: int = 0) -> Iterator[np.ndarray]:
+    """Every NumPy array reachable from `value` through dataclass fields, tuples, lists and
+    dict values (a snapshot's parts)."""
+    if isinstance(value, np.ndarray):
+        yield value
+    elif _depth > 8 or value is None or isinstance(value, str | bytes | int | float | bool):
+        return
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for field in dataclasses.fields(value):
+            yield from arrays_of(getattr(value, field.name), _depth=_depth + 1)
+    elif isinstance(value, tuple | list):
+        for item in value:
+            yield from arrays_of(item, _depth=_depth + 1)
+    elif isinstance(value, dict):
+        for item in value.values():
+            yield from arrays_of(item, _depth=_depth + 1)
+
+
+def _owner(array: np.ndarray) -> np.ndarray:
+    """The array that owns `array`'s memory (views lead back to it)."""
+    while isinstance(array.base, np.ndarray):
+        array = array.base
+    return array
+
+
+class ArrayLedger:
+    """Bytes of the distinct array buffers held by the objects added and not yet removed
+    (each buffer counted once however many snapshots share it)."""
+
+    def __init__(self) -> None:
+        self._count: dict[int, int] = {}
+        self._size: dict[int, int] = {}
+        self._held: dict[int, np.ndarray] = {}  # keeps each counted owner alive, so its id is not reused
+        self.bytes = 0
+
+    def add(self, value: object) -> None:
+        for key, owner in self._owners(value).items():
+            if key in self._count:
+                self._count[key] += 1
+            else:
+                self._count[key], self._size[key], self._held[key] = 1, int(owner.nbytes), owner
+                self.bytes += int(owner.nbytes)
+
+    def remove(self, value: object) -> None:
+        for key in self._owners(value):
+            self._count[key] -= 1
+            if self._count[key] == 0:
+                self.bytes -= self._size.pop(key)
+                del self._count[key], self._held[key]
+
+    def clear(self) -> None:
+        self._count.clear()
+        self._size.clear()
+        self._held.clear()
+        self.bytes = 0
+
+    @staticmethod
+    def _owners(value: object) -> dict[int, np.ndarray]:
+        owners = {}
+        for array in arrays_of(value):
+            owner = _owner(array)
+            owners[id(owner)] = owner
+        return owners
 
 
 class SnapshotHistory:
     """Snapshots by keyframe and variant, in keyframe order."""
 
-    def __init__(self, capacity: int) -> None:
+    def __init__(self, capacity: int, *, max_bytes: int = DEFAULT_MAX_BYTES) -> None:
         if capacity < 1:
             raise ValueError("capacity must be at least 1 keyframe")
+        if max_bytes < 1:
+            raise ValueError("max_bytes must be positive")
         self.capacity = capacity
+        self.max_bytes = max_bytes
         self._by_keyframe: collections.OrderedDict[int, dict[Variant, Snapshot]] = collections.OrderedDict()
         self._stepped: dict[int, Variant] = {}  # the variant each keyframe was stepped with
         self._latest: dict[int, Variant] = {}  # the variant computed or chosen last there
+        self._ledger = ArrayLedger()
+
+    @property
+    def bytes(self) -> int:
+        """Bytes of the kept snapshots' arrays (shared buffers once)."""
+        return self._ledger.bytes
 
     def __len__(self) -> int:
         """Number of keyframes kept."""
@@ -38,23 +121,37 @@ class SnapshotHistory:
         self._by_keyframe.clear()
         self._stepped.clear()
         self._latest.clear()
+        self._ledger.clear()
 
     def add_step(self, snapshot: Snapshot) -> None:
         """A new keyframe's first snapshot (replaces anything kept for that keyframe, e.g.
         after a reset)."""
         k = snapshot.keyframe
-        self._by_keyframe.pop(k, None)
+        for old in self._by_keyframe.pop(k, {}).values():
+            self._ledger.remove(old)
         self._by_keyframe[k] = {snapshot.variant: snapshot}
+        self._ledger.add(snapshot)
         self._stepped[k] = self._latest[k] = snapshot.variant
-        while len(self._by_keyframe) > self.capacity:
-            old, _ = self._by_keyframe.popitem(last=False)
-            self._stepped.pop(old, None)
-            self._latest.pop(old, None)
+        self._trim()
 
     def add_variant(self, snapshot: Snapshot) -> None:
         """Another variant's snapshot of a kept keyframe (it becomes the latest there)."""
-        self._by_keyframe[snapshot.keyframe][snapshot.variant] = snapshot
+        kept = self._by_keyframe[snapshot.keyframe]
+        if snapshot.variant in kept:
+            self._ledger.remove(kept[snapshot.variant])
+        kept[snapshot.variant] = snapshot
+        self._ledger.add(snapshot)
         self._latest[snapshot.keyframe] = snapshot.variant
+        self._trim()
+
+    def _trim(self) -> None:
+        """Drop the oldest keyframes beyond `capacity` or `max_bytes` (never the newest)."""
+        while len(self._by_keyframe) > 1 and (len(self._by_keyframe) > self.capacity or self._ledger.bytes > self.max_bytes):
+            old, snapshots = self._by_keyframe.popitem(last=False)
+            for snapshot in snapshots.values():
+                self._ledger.remove(snapshot)
+            self._stepped.pop(old, None)
+            self._latest.pop(old, None)
 
     def choose(self, keyframe: int, variant: Variant) -> None:
         """Make a computed variant the latest at `keyframe` (the user returned to it)."""

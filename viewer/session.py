@@ -22,7 +22,7 @@ from collections.abc import Callable
 from backend.optim.variant import VARIANTS, Variant
 from backend.pipeline.engine import EndOfSequence, Engine, EngineCheckpoint
 from backend.pipeline.snapshot import FrameTrajectory, Snapshot
-from viewer.history import SnapshotHistory
+from viewer.history import DEFAULT_MAX_BYTES, SnapshotHistory
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,12 +50,13 @@ class Stepped:
 
 
 class Session:
-    """The run behind the debugger (module docstring); `keep`: keyframes kept."""
+    """The run behind the debugger (module docstring); `keep`: keyframes kept, `max_bytes`:
+    bytes of their snapshots' arrays kept (viewer/history.py)."""
 
-    def __init__(self, engine: Engine, *, keep: int) -> None:
+    def __init__(self, engine: Engine, *, keep: int, max_bytes: int = DEFAULT_MAX_BYTES) -> None:
         self.engine = engine
         self.keep = keep
-        self.history = SnapshotHistory(keep)
+        self.history = SnapshotHistory(keep, max_bytes=max_bytes)
         self._states_keyframe: int | None = None
         self._states: dict[object, EngineCheckpoint] = {}
         self.engine_b: Engine | None = None
@@ -219,5 +220,6 @@ class Session:
 
     def _keep_b(self, snapshot: Snapshot) -> None:
         self.history_b[snapshot.keyframe] = snapshot
-        while len(self.history_b) > self.keep:
+        first = self.history.first_keyframe if self.history else snapshot.keyframe
+        while len(self.history_b) > self.keep or next(iter(self.history_b)) < first:  # B's kept keyframes follow A's
             self.history_b.pop(next(iter(self.history_b)))

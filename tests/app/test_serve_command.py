@@ -54,6 +54,8 @@ BAD_INPUT = {
     "window": (["--window", "1"], ["--window", "1"]),
     "window-mc": (["--scene", "mc-a", "--window", "1"], ["--window", "1"]),
     "history": (["--history", "0"], ["--history", "0"]),
+    "history-mb-zero": (["--history-mb", "0"], ["--history-mb 0"]),
+    "history-mb-nan": (["--history-mb", "nan"], ["--history-mb nan"]),
     "port-high": (["--port", "70000"], ["--port", "70000"]),
     "port-negative": (["--port", "-1"], ["--port", "-1"]),
     "port-text": (["--port", "http"], ["--port", "http"]),

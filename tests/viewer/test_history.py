@@ -51,3 +51,35 @@ def test_capacity_drops_the_oldest_keyframe_with_its_variants(steps) -> None:
     assert not h and len(h) == 0
     with pytest.raises(ValueError):
         SnapshotHistory(0)
+
+
+def test_the_byte_cap_drops_the_oldest_keyframes_and_counts_shared_arrays_once() -> None:
+    """Snapshots of a real run share arrays (the trajectory's prefix); the history counts a
+    shared buffer once, and a cap below the run's size keeps the newest keyframes that fit."""
+    from viewer.history import ArrayLedger
+
+    engine = SimEngine(SimSettings(window=4, max_iterations=2))
+    snaps = [engine.step() for _ in range(12)]
+    unlimited = SnapshotHistory(100)
+    for s in snaps:
+        unlimited.add_step(s)
+    separately = 0
+    for s in snaps:
+        ledger = ArrayLedger()
+        ledger.add(s)
+        separately += ledger.bytes
+    assert 0 < unlimited.bytes < separately  # shared buffers counted once
+    cap = unlimited.bytes // 2
+    capped = SnapshotHistory(100, max_bytes=cap)
+    for s in snaps:
+        capped.add_step(s)
+    assert capped.bytes <= cap and 1 <= len(capped) < len(snaps)
+    assert capped.keyframes() == [s.keyframe for s in snaps[-len(capped) :]]  # the newest kept
+    capped.add_variant(_as(snaps[-1], "P-wo"))
+    assert capped.bytes <= cap and capped.newest_keyframe == snaps[-1].keyframe
+    tiny = SnapshotHistory(100, max_bytes=1)
+    for s in snaps:
+        tiny.add_step(s)
+    assert tiny.keyframes() == [snaps[-1].keyframe]  # the newest is always kept
+    tiny.clear()
+    assert tiny.bytes == 0
