@@ -18,20 +18,27 @@ import dataclasses
 from collections.abc import Iterator
 
 import numpy as np
+import scipy.sparse as sp
 
 from backend.optim.variant import Variant
 from backend.pipeline.snapshot import Snapshot
 
-DEFAULT_MAX_BYTES = 300 * 2**20
+DEFAULT_MAX_BYTES = 150 * 2**20
 
 
-def arrays_of(value: object, *, _depth: int = 0) -> Iterator[np.ndarray]:
-    """Every NumPy array reachable from `value` through dataclass fields, tuples, lists and
-    dict values (a snapshot's parts)."""
-    if isinstance(value, np.ndarray):
+def arrays_of(value: object, *, _depth: int = 0) -> Iterator[np.ndarray | bytes]:
+    """Every NumPy array and bytes object (the encoded keyframe image) reachable from `value`
+    through dataclass fields, tuples, lists, dict values and SciPy sparse matrices (the
+    Hessian's pattern): a snapshot's parts."""
+    if isinstance(value, np.ndarray | bytes):
         yield value
-    elif _depth > 8 or value is None or isinstance(value, str | bytes | int | float | bool):
+    elif _depth > 8 or value is None or isinstance(value, str | int | float | bool):
         return
+    elif sp.issparse(value):
+        for name in ("data", "indices", "indptr", "row", "col"):
+            part = getattr(value, name, None)
+            if isinstance(part, np.ndarray):
+                yield part
     elif dataclasses.is_dataclass(value) and not isinstance(value, type):
         for field in dataclasses.fields(value):
             yield from arrays_of(getattr(value, field.name), _depth=_depth + 1)
@@ -43,21 +50,25 @@ def arrays_of(value: object, *, _depth: int = 0) -> Iterator[np.ndarray]:
             yield from arrays_of(item, _depth=_depth + 1)
 
 
-def _owner(array: np.ndarray) -> np.ndarray:
-    """The array that owns `array`'s memory (views lead back to it)."""
-    while isinstance(array.base, np.ndarray):
+def _owner(array: np.ndarray | bytes) -> np.ndarray | bytes:
+    """The object that owns `array`'s memory (views lead back to it; bytes own theirs)."""
+    while isinstance(array, np.ndarray) and isinstance(array.base, np.ndarray):
         array = array.base
     return array
 
 
+def _size(owner: np.ndarray | bytes) -> int:
+    return int(owner.nbytes) if isinstance(owner, np.ndarray) else len(owner)
+
+
 class ArrayLedger:
-    """Bytes of the distinct array buffers held by the objects added and not yet removed
-    (each buffer counted once however many snapshots share it)."""
+    """Bytes of the distinct buffers (arrays, bytes) held by the objects added and not yet
+    removed (each counted once however many snapshots share it)."""
 
     def __init__(self) -> None:
         self._count: dict[int, int] = {}
         self._size: dict[int, int] = {}
-        self._held: dict[int, np.ndarray] = {}  # keeps each counted owner alive, so its id is not reused
+        self._held: dict[int, np.ndarray | bytes] = {}  # keeps each counted owner alive, so its id is not reused
         self.bytes = 0
 
     def add(self, value: object) -> None:
@@ -65,8 +76,8 @@ class ArrayLedger:
             if key in self._count:
                 self._count[key] += 1
             else:
-                self._count[key], self._size[key], self._held[key] = 1, int(owner.nbytes), owner
-                self.bytes += int(owner.nbytes)
+                self._count[key], self._size[key], self._held[key] = 1, _size(owner), owner
+                self.bytes += _size(owner)
 
     def remove(self, value: object) -> None:
         for key in self._owners(value):
@@ -82,7 +93,7 @@ class ArrayLedger:
         self.bytes = 0
 
     @staticmethod
-    def _owners(value: object) -> dict[int, np.ndarray]:
+    def _owners(value: object) -> dict[int, np.ndarray | bytes]:
         owners = {}
         for array in arrays_of(value):
             owner = _owner(array)

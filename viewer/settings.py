@@ -15,7 +15,7 @@ class ViewerSettings:
     sweep` output folder the Sweep tab shows (None: none)."""
 
     history: int = 500
-    history_mb: float = 300.0
+    history_mb: float = 150.0
     rate_hz: float = 5.0
     compare: bool = True
     plots: bool = True

@@ -19,6 +19,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import pathlib
+import threading
 from collections.abc import Callable
 
 import numpy as np
@@ -84,7 +85,9 @@ class SyntheticSequence:
     and the rates in use, `camera_rate_hz` and `imu_rate_hz` (the settings', else the rig's).
     Rendering a pair (about 45 per second for the default rig) is
     faster than reading its PNGs back, so frames are not written anywhere: the last
-    `cache_frames` pairs are kept in memory, and each frame's image noise has its own seed,
+    `cache_frames` pairs are kept in memory (about 5 MB each at 752×480 with their depth and
+    plane ids: enough for the pipeline's read-ahead of 8 frames and a keyframe's plane ids
+    asked for after it), and each frame's image noise has its own seed,
     so any frame renders the same whenever it is asked for. The ground truth is the body's
     (`ground_truth_frame` "body", as `render` writes it to `state_groundtruth_estimate0`), the
     left camera in it `T_truth_rect0` = `T_body_rect0`.
@@ -92,7 +95,7 @@ class SyntheticSequence:
 
     ground_truth_frame: str = "body"
 
-    def __init__(self, scene: Scene, *, settings: SequenceSettings = SequenceSettings(), cache_frames: int = 64) -> None:
+    def __init__(self, scene: Scene, *, settings: SequenceSettings = SequenceSettings(), cache_frames: int = 16) -> None:
         self.scene = scene
         self.settings = settings
         self.camera = scene.rig.camera
@@ -118,6 +121,7 @@ class SyntheticSequence:
         self.plane_table = scene.planes
         self._cache: collections.OrderedDict[int, tuple[View, View]] = collections.OrderedDict()
         self._cache_frames = cache_frames
+        self._cache_lock = threading.Lock()
 
     def __len__(self) -> int:
         return int(self.timestamps_ns.shape[0])
@@ -148,9 +152,11 @@ class SyntheticSequence:
     def views(self, index: int) -> tuple[View, View]:
         """Left and right views of frame `index` (image, depth along z in m, plane ids)."""
         index = range(len(self))[index]
-        if index in self._cache:
-            self._cache.move_to_end(index)
-            return self._cache[index]
+        with self._cache_lock:  # the frames are read on a worker thread, the oracle's plane ids on another
+            cached = self._cache.get(index)
+            if cached is not None:
+                self._cache.move_to_end(index)
+                return cached
         s = self.settings
         T = self.T_world_rect0[index]
         gain = 1.0 + s.exposure * np.sin(2.0 * np.pi * self.timestamps_ns[index] * 1e-9 / 7.0)
@@ -158,9 +164,10 @@ class SyntheticSequence:
             gain *= self.scene.exposure.gain(float(self.timestamps_ns[index]) * 1e-9)
         rng = np.random.default_rng([s.seed, 0x1A6E, index])
         pair = render_stereo(self.scene, self.camera, T[:3, :3], T[:3, 3], gain=gain, blur_sigma_px=s.blur_px, noise_sigma=s.image_noise, rng=rng)
-        self._cache[index] = pair
-        if len(self._cache) > self._cache_frames:
-            self._cache.popitem(last=False)
+        with self._cache_lock:
+            self._cache[index] = pair
+            while len(self._cache) > self._cache_frames:
+                self._cache.popitem(last=False)
         return pair
 
     def left_depth(self, index: int) -> np.ndarray:
