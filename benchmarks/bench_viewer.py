@@ -182,8 +182,8 @@ def bench_points(browser, args: argparse.Namespace) -> None:
 def bench_memory(browser, args: argparse.Namespace) -> None:
     import gc
 
-    if args.scene == "room":  # long enough for --steps keyframes (about 7 frames each at 20 Hz)
-        debugger = _room_debugger(duration_s=max(60.0, 0.4 * args.steps))
+    if args.scene == "room":  # long enough for --steps keyframes (200 s of room's path gave 279)
+        debugger = _room_debugger(duration_s=max(60.0, 0.8 * args.steps))
     else:
         debugger = start_debugger(sequence=args.sequence)
     try:
