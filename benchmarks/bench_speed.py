@@ -2,14 +2,15 @@
 `coplanar run` runs them (headless defaults: P variants detect no lines, -wo variants
 segment no planes, no keyframe image, no Hessian image), beside the paper's Table III.
 
-    .venv/bin/python benchmarks/bench_speed.py [--runs 3] [--cases mh01,room,street,vio-room] [--variant PL-w] [--no-read-ahead]
+    .venv/bin/python benchmarks/bench_speed.py [--runs 3] [--cases mh01,room,street,vio-room] [--variant PL-w] [--no-read-ahead] [--write]
 
 Every frame is read (or rendered) into memory first, so the times leave out reading, as
 from a camera; then the engine runs the whole input. Per frame: the wall time of the
 engine's steps divided by the frames (the figure the goals are about; the next frame's ORB
 detection runs on a worker thread meanwhile, so it is less than the sum of the stages).
 Per stage: the mean per frame (point D&M, tracking) or per keyframe (the rest), each the
-thread time of that stage. Prints one table per case (median over the runs) and a summary.
+thread time of that stage. Prints one table per case (median over the runs) and a summary;
+`--write` also puts them in docs/results/speed.md (its `bench-speed` block).
 
 Cases: `mh01` the real EuRoC MH_01 slice (300 pairs 752×480, ../shared/data, skipped when
 absent); `room` the rendered room (30 s at 20 Hz, 752×480); `street` the rendered street
@@ -22,6 +23,7 @@ import argparse
 import os
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -95,7 +97,10 @@ def main() -> None:
     parser.add_argument("--cases", default="mh01,room,street,vio-room")
     parser.add_argument("--variant", default="PL-w")
     parser.add_argument("--no-read-ahead", action="store_true", help="detect the next frame's keypoints after tracking, on one thread (for comparing)")
+    parser.add_argument("--write", action="store_true", help="also write the tables into docs/results/speed.md")
     args = parser.parse_args()
+    lines: list[str] = []
+    emit = lambda text="": (print(text), lines.append(text))  # noqa: E731
     print(f"# {cpu_name()}, {os.cpu_count()} cpus, python {platform.python_version()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
     print(f"# read-ahead {'off' if args.no_read_ahead else 'on'}, median of {args.runs} run(s)")
     summary = []
@@ -105,16 +110,24 @@ def main() -> None:
             continue
         results = [run_once(config_for(case, variant=args.variant, read_ahead=not args.no_read_ahead)) for _ in range(args.runs)]
         med = {key: statistics.median(r[key] for r in results) for key in results[0]}
-        print(f"\n## {case} {args.variant}: {int(med['frames'])} frames, {int(med['keyframes'])} keyframes, ATE {med['ate_cm']:.2f} cm")
-        print("| stage | ms (median) | per | paper |")
-        print("|---|---|---|---|")
+        emit(f"\n**{case}** {args.variant}: {int(med['frames'])} frames, {int(med['keyframes'])} keyframes, ATE {med['ate_cm']:.2f} cm\n")
+        emit("| stage | ms (median) | per | paper (Table III) |")
+        emit("|---|---|---|---|")
         for stage in SHOWN:
             if stage in med:
-                print(f"| {stage} | {med[stage]:.1f} | {'frame' if stage in PER_FRAME_STAGES else 'keyframe'} | {PAPER.get(stage, '')} |")
+                emit(f"| {stage} | {med[stage]:.1f} | {'frame' if stage in PER_FRAME_STAGES else 'keyframe'} | {PAPER.get(stage, '')} |")
         runs = ", ".join(f"{r['per frame']:.1f}" for r in results)
-        print(f"| **per frame (wall)** | **{med['per frame']:.1f}** (runs {runs}) | frame | {PAPER['per frame']} |")
+        emit(f"| **per frame (wall)** | **{med['per frame']:.1f}** (runs {runs}) | frame | {PAPER['per frame']} |")
         summary.append(f"{case}: {med['per frame']:.1f} ms per frame (goal {GOALS_MS[case]:g})")
     print("\n" + "\n".join(summary))
+    if args.write:
+        sys.path.insert(0, str(ROOT / "scripts"))
+        from results_doc import write_block
+
+        command = " ".join([".venv/bin/python", "benchmarks/bench_speed.py", *sys.argv[1:]])
+        head = f"`{command}` on {cpu_name()}, {os.cpu_count()} cpus, one BLAS thread, median of {args.runs} run(s), read-ahead {'off' if args.no_read_ahead else 'on'}:"
+        page = write_block("bench-speed", "\n".join([head, *lines, "", *(f"- {line}" for line in summary)]))
+        print(f"wrote {page}")
 
 
 if __name__ == "__main__":
