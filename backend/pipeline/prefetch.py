@@ -14,6 +14,7 @@ stopped, or the engine was restored to an earlier frame) are dropped with their 
 
 from __future__ import annotations
 
+import atexit
 import collections
 import dataclasses
 import threading
@@ -45,6 +46,20 @@ class PreparedFrame:
     load_wait_ms: float = 0.0  # how long the pipeline waited for the reading (set by `take`)
 
 
+_READERS: weakref.WeakSet[_Reader] = weakref.WeakSet()
+
+
+def _stop_readers_at_exit() -> None:
+    """Stop every reader before the interpreter finalizes: a daemon thread still inside
+    OpenCV then would abort the process ("terminate called without an active exception"),
+    e.g. when Ctrl-C or SIGTERM ends a run while frames are read ahead."""
+    for reader in list(_READERS):
+        reader.stop(timeout_s=10.0)
+
+
+atexit.register(_stop_readers_at_exit)
+
+
 class _Reader:
     """Frames `start`, `start + 1`, ... prepared in order on one daemon thread, at most `depth`
     ready and not yet taken (a daemon: an interrupted run never waits for reads it no longer
@@ -60,6 +75,7 @@ class _Reader:
         self._cond = threading.Condition()
         self._stopped = False
         self._thread = threading.Thread(target=self._run, args=(start,), name=f"coplanar-read-ahead-{start}", daemon=True)
+        _READERS.add(self)
         self._thread.start()
 
     def _run(self, index: int) -> None:
@@ -93,14 +109,14 @@ class _Reader:
         assert frame is not None
         return frame
 
-    def stop(self) -> None:
+    def stop(self, *, timeout_s: float | None = None) -> None:
         """Stop reading; returns when the frame being prepared, if any, is done (one reader of
-        the input at a time)."""
+        the input at a time; `timeout_s`: wait at most that long)."""
         with self._cond:
             self._stopped = True
             self._cond.notify_all()
         if self._thread is not threading.current_thread():
-            self._thread.join()
+            self._thread.join(timeout_s)
 
     def stop_soon(self) -> None:
         """Stop reading without waiting (the engine is gone)."""
