@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_viewer.py latency   # Step click -> updated scene
     .venv/bin/python benchmarks/bench_viewer.py points    # a 100k-point map
     .venv/bin/python benchmarks/bench_viewer.py memory    # server RSS over 1000 steps
+    .venv/bin/python benchmarks/bench_viewer.py switch    # choosing a variant -> its result shown
 
 latency: the debugger on Monte-Carlo sequence a, warmed up by `--warmup` keyframes (the
 window full, the map grown); then `--clicks` clicks on Step, each timed inside the page
@@ -13,6 +14,11 @@ animation frame after it.
 points: a snapshot whose map holds `--points` points (the real snapshot's other layers
 kept) is drawn and sent; reports the server-side draw time, the time until the browser
 has it, and Step latency while it is shown.
+
+switch: after `--warmup` keyframes, `--clicks` rounds of: a Step (not timed), then a
+variant chosen in the page's Variant menu (one not yet computed at that keyframe: the window
+re-optimized) and PL-w chosen again (kept: shown without recomputing), each timed from the
+choice to the "Shown" field naming it; `--pause` ms before each choice.
 
 memory: `--steps` engine steps through the debugger (every snapshot drawn, the history
 capped at its default) with one browser tab connected; prints the server's resident set
@@ -139,6 +145,39 @@ def bench_latency(browser, args: argparse.Namespace) -> None:
         debugger.stop()
 
 
+def bench_switch(browser, args: argparse.Namespace) -> None:
+    from tests.browser.conftest import field
+
+    debugger = _room_debugger() if args.scene == "room" else start_debugger(sequence=args.sequence)
+    others = ("P-wo", "PL-wo", "P-r", "PL-r", "P-w")
+    try:
+        for _ in range(args.warmup):
+            debugger.submit("step")
+        debugger.wait_idle(timeout=300)
+        page = open_page(browser, debugger, width=args.width, height=args.height)
+        wait_shown(page, f"{args.warmup - 1} (PL-w)")
+        new, kept = [], []
+        for i in range(args.clicks):
+            page.get_by_role("button", name="Step").click()
+            k = args.warmup + i
+            page.evaluate(_WAIT_JS, f"{k} (PL-w)")
+            for variant, times in ((others[i % len(others)], new), ("PL-w", kept)):
+                if args.pause > 0:
+                    page.wait_for_timeout(args.pause)
+                field(page, "Variant").click()
+                option = page.get_by_role("option", name=variant, exact=True)
+                t0 = time.perf_counter()
+                option.click()
+                page.evaluate(_WAIT_JS, f"{k} ({variant})")
+                times.append(1e3 * (time.perf_counter() - t0))
+        what = "rendered room (stereo pipeline)" if args.scene == "room" else f"sequence {args.sequence}"
+        print(f"{what}, after {args.warmup} keyframes, page {args.width}x{args.height}, {args.pause:g} ms before each choice:")
+        print(f"  a new variant (window re-optimized) -> shown: {_summary(new)}")
+        print(f"  back to a kept one (PL-w) -> shown:           {_summary(kept)}")
+    finally:
+        debugger.stop()
+
+
 def bench_points(browser, args: argparse.Namespace) -> None:
     from backend.pipeline.snapshot import PointLandmarks, frozen
 
@@ -209,8 +248,8 @@ def bench_memory(browser, args: argparse.Namespace) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("which", choices=("latency", "points", "memory"))
-    parser.add_argument("--scene", choices=("mc-a", "room"), default="mc-a", help="latency, memory: Monte-Carlo sequence (--sequence) or the rendered room")
+    parser.add_argument("which", choices=("latency", "points", "memory", "switch"))
+    parser.add_argument("--scene", choices=("mc-a", "room"), default="mc-a", help="latency, memory, switch: Monte-Carlo sequence (--sequence) or the rendered room")
     parser.add_argument("--sequence", choices=("a", "b"), default="a")
     parser.add_argument("--warmup", type=int, default=30)
     parser.add_argument("--clicks", type=int, default=30)
@@ -227,7 +266,7 @@ def main() -> None:
 
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
-        {"latency": bench_latency, "points": bench_points, "memory": bench_memory}[args.which](browser, args)
+        {"latency": bench_latency, "points": bench_points, "memory": bench_memory, "switch": bench_switch}[args.which](browser, args)
         browser.close()
 
 
