@@ -25,7 +25,9 @@ class Worker:
     `worked_at` is when the last one ended (the plot thread waits for a pause). When a
     command has run, no other waits and `idle()` says so, the worker queues its own
     `Command.AHEAD` (the next step computed ahead; skipped if a command comes first), so
-    `wait_idle` also waits for it."""
+    `wait_idle` also waits for it; it does not count as work for `working` and
+    `worked_at`, so the plots of what is shown are drawn meanwhile, not when the user may
+    act next."""
 
     def __init__(
         self,
@@ -81,7 +83,8 @@ class Worker:
             if command is Command.AHEAD and (self.playing.is_set() or self.commands.pending()):
                 self.commands.task_done()  # a command came meanwhile: it goes first
                 continue
-            self.working.set()
+            if command is not Command.AHEAD:  # the plots wait for a pause in the user's commands, not for the step ahead
+                self.working.set()
             try:
                 self._execute(command, arg)
             except Exception as exc:  # an error in a step pauses the run, the server stays up
@@ -91,8 +94,8 @@ class Worker:
             finally:
                 if command is not Command.AHEAD:
                     self._done()
-                self.worked_at = time.monotonic()
-                self.working.clear()
+                    self.worked_at = time.monotonic()
+                    self.working.clear()
                 if command is not Command.AHEAD and not self.playing.is_set() and self._idle is not None and not self.commands.pending() and self._idle():
                     self.commands.put(Command.AHEAD)  # before task_done: wait_idle waits for it too
                 if not from_timer:
