@@ -100,7 +100,11 @@ def main() -> None:
     parser.add_argument("--write", action="store_true", help="also write the tables into docs/results/speed.md")
     args = parser.parse_args()
     lines: list[str] = []
-    emit = lambda text="": (print(text), lines.append(text))  # noqa: E731
+
+    def emit(text: str = "") -> None:
+        print(text)
+        lines.append(text)
+
     print(f"# {cpu_name()}, {os.cpu_count()} cpus, python {platform.python_version()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
     print(f"# read-ahead {'off' if args.no_read_ahead else 'on'}, median of {args.runs} run(s)")
     summary = []

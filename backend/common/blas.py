@@ -20,7 +20,7 @@ import os
 import sys
 import threading
 from collections.abc import Callable, Iterator
-from contextlib import AbstractContextManager, contextmanager
+from contextlib import contextmanager
 from typing import ParamSpec, TypeVar
 
 from threadpoolctl import ThreadpoolController
@@ -93,11 +93,6 @@ class _Limiter:
 
 
 _LIMITER = _Limiter()
-
-
-def blas_limited() -> AbstractContextManager[None]:
-    """Context manager: the library's BLAS thread count (one by default) inside the block."""
-    return _LIMITER.limit()
 
 
 def single_threaded_blas(function: Callable[P, R]) -> Callable[P, R]:

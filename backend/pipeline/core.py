@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import Protocol
 
 import numpy as np
 
+from backend.common import workers
 from backend.common.timing import Stage
 from backend.data.source import StereoSource
 from backend.frontend.lines import Segments, StereoSegments, detect_segments
@@ -36,7 +38,7 @@ from backend.optim.structure import HessianStructure, hessian_structure
 from backend.optim.variant import Variant
 from backend.pipeline.engine import EndOfSequence, EngineCheckpoint
 from backend.pipeline.overlay import draw_keyframe_image
-from backend.pipeline.prefetch import FramePrefetch, PlaneJob, timed_prepare
+from backend.pipeline.prefetch import FramePrefetch, timed_prepare
 from backend.pipeline.snapshot import Detection, FrameTrajectory, KeyframeImage, OptimizationReport, Snapshot, Tracking, Trajectory, frozen
 from backend.pipeline.stages.culling import CullSettings, cull, local_map
 from backend.pipeline.stages.planes import FeatureStates, detect_planes, segment_keyframe
@@ -210,11 +212,11 @@ class PipelineCore:
         T_true = self.data_source.T_world_rect0[i] if bool(self.data_source.ground_truth_valid[i]) else None
         self.map.add_keyframe(i, R, t, stamp_ns=int(self.data_source.timestamps_ns[i]), T_world_true=T_true)
 
-    def start_segmentation(self, i: int, images: tuple[np.ndarray, np.ndarray]) -> PlaneJob:
+    def start_segmentation(self, i: int, images: tuple[np.ndarray, np.ndarray]) -> Future[tuple[PlaneMasks, float]]:
         """Frame i's plane segmentation of `images` (the segmenter's left and right) started on
         a worker thread: it depends on the images alone, so the keyframe's points and lines
         are matched meanwhile (`detect_and_solve` takes the result)."""
-        return PlaneJob.start(lambda: segment_keyframe(self.segmenter, i, *images, self.camera))
+        return workers.submit_timed(lambda: segment_keyframe(self.segmenter, i, *images, self.camera))
 
     def detect_and_solve(
         self,
@@ -226,7 +228,7 @@ class PipelineCore:
         rng: np.random.Generator,
         timing: dict[str, float],
         *,
-        planes: PlaneJob | None,
+        planes: Future[tuple[PlaneMasks, float]] | None,
     ) -> tuple[PlaneMasks | None, Detection, OptimizationReport, HessianStructure | None]:
         """Keyframe k (frame i) after its landmarks: plane segmentation (`planes`, from
         `start_segmentation`; None: no planes this keyframe) and co-planar detection,

@@ -21,13 +21,10 @@ import threading
 import time
 import weakref
 from collections.abc import Callable
-from concurrent.futures import Future
 
 import numpy as np
 
-from backend.common import workers
 from backend.frontend.points import Keypoints
-from backend.frontend.segmentation import PlaneMasks
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -175,25 +172,3 @@ def timed_prepare(read: Callable[[int], tuple[np.ndarray, np.ndarray]], detect: 
         return PreparedFrame(index, left, right, keypoints, 1e3 * (t1 - t0), 1e3 * (t2 - t1), loaded_at=t1)
 
     return prepare
-
-
-class PlaneJob:
-    """A keyframe's plane segmentation running on a worker (`backend.common.workers`) while
-    the keyframe's points and lines are matched: it reads the images alone (never the map),
-    so its masks are those of running it in place. `result()` waits and returns the masks and
-    the segmentation's own time (ms); it raises the segmenter's error."""
-
-    def __init__(self, future: Future[tuple[PlaneMasks, float]]) -> None:
-        self._future = future
-
-    @classmethod
-    def start(cls, segment: Callable[[], PlaneMasks]) -> PlaneJob:
-        def timed() -> tuple[PlaneMasks, float]:
-            t0 = time.perf_counter()
-            masks = segment()
-            return masks, 1e3 * (time.perf_counter() - t0)
-
-        return cls(workers.submit(timed))
-
-    def result(self) -> tuple[PlaneMasks, float]:
-        return self._future.result()
