@@ -1,4 +1,4 @@
-"""Benchmark: our six variants against gtsam's built-in C++ factors, on identical data.
+"""Benchmark: our six variants against gtsam's built-in C++ factors and g2o, on identical data.
 
 The peer is what a user could pick instead of this package: the traditional
 parametrization in gtsam, one `Pose3` per camera (camera to world) and one `Point3` per
@@ -8,6 +8,18 @@ for the odometry, `PriorFactorPose3` and `RangeFactorPose3` for the gauge, solve
 `GaussNewtonOptimizer` with its defaults (multifrontal Cholesky, COLAMD ordering). gtsam
 has no built-in line factor: it is the peer of P-wo, and the PL variants are compared
 against it too (the ratio column).
+
+The second peer is g2o as ORB-SLAM2 uses it (benchmarks/peer_g2o.py): `VertexSE3Expmap`
+cameras, marginalized `VertexPointXYZ` points (the Schur complement), `EdgeSE3ProjectXYZ`,
+`BlockSolverSE3` over `LinearSolverEigenSE3`, first camera fixed; "g2o GN" with
+`OptimizationAlgorithmGaussNewton`, "g2o LM" with `OptimizationAlgorithmLevenberg`
+(ORB-SLAM's choice). g2o has no stopping test of its own (LM stops only when no damped step
+lowers the cost): at equal work and by default both run 10 iterations; under the same
+stopping rule g2o's own `SparseOptimizerTerminateAction` stops them at a relative gain of
+10⁻⁵ (gain measured against the new cost, not the old: the same to first order). Its time
+is `optimize()`, which includes g2o's symbolic structure build in the first iteration;
+its setup is graph building and `initialize_optimization()`. Neither g2o nor gtsam runs
+more than one thread here (the wheels load no OpenMP or TBB runtime; the script checks).
 
 For every sequence and noise draw (DESIGN §4, run r seeded `(seed, r)`), both sides solve
 the same `ProblemData` in one process, in three regimes:
@@ -39,6 +51,7 @@ respect: P-wo's point lies on its anchor ray (the anchor observation is taken as
 dropped), gtsam's 3-DoF point may leave it, so gtsam's minimum is lower.
 
     .venv/bin/python benchmarks/bench_peer.py --runs 5
+    .venv/bin/python benchmarks/bench_peer.py --runs 5 --no-g2o    # gtsam only
     .venv/bin/python benchmarks/bench_peer.py --sequence b --runs 2 --repeats 5
 """
 
@@ -47,11 +60,14 @@ from __future__ import annotations
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import dataclasses
 import importlib.metadata
+import pathlib
 import platform
+import sys
 import time
 from collections.abc import Sequence
 
@@ -65,8 +81,15 @@ from backend.optim.problem import ProblemData, State, build_problem
 from backend.optim.solver import optimize
 from backend.optim.variant import VARIANTS
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+try:
+    import peer_g2o
+except ImportError:  # g2opy comes with the test tools (scripts/setup.sh --test)
+    peer_g2o = None
+
 MAX_ITERATIONS = 10
 PEER = "gtsam"
+G2O_PEERS: dict[str, str] = {"g2o GN": "gn", "g2o LM": "lm"}
 # Ours at equal work: no convergence test. Its step control stays on: the solver never
 # accepts a step that raises the cost, so it halves or damps an overshooting step (sequence
 # a does that in its first iterations); a rejected trial costs a linearization, counted in
@@ -222,6 +245,39 @@ def solve_peer(data: ProblemData, world: sequences.World, *, equal_work: bool, r
     return Solve(float(np.median(times)), float(np.median(setups)), iterations, iterations, "", float(peer.graph.error(result)), rmse)
 
 
+def solve_g2o(data: ProblemData, world: sequences.World, name: str, *, regime: str, repeats: int) -> Solve:
+    """Build and solve the g2o graph with the algorithm of peer `name` ("g2o GN" or "g2o
+    LM") `repeats` times; medians of the times. Under the "same" regime g2o's terminate
+    action stops at a relative gain of 10⁻⁵. A run whose linear solve fails (g2o then
+    stops early without raising: no iteration done, or Gauss-Newton ending before 10
+    iterations without the terminate action) or whose cost ends non-finite is returned
+    with `failed`."""
+    algorithm = G2O_PEERS[name]
+    times, setups = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        graph = peer_g2o.build_g2o_graph(data, points_world=initial_points_world(data), algorithm=algorithm)  # type: ignore[arg-type]
+        graph.optimizer.initialize_optimization()
+        stop = None
+        if regime == "same":
+            stop = peer_g2o.g2opy.SparseOptimizerTerminateAction()
+            stop.set_gain_threshold(OURS_SAME_RULE["relative_tolerance"])
+            stop.set_max_iterations(MAX_ITERATIONS)
+            graph.optimizer.add_post_iteration_action(stop)
+        t1 = time.perf_counter()
+        iterations = int(graph.optimizer.optimize(MAX_ITERATIONS))
+        t2 = time.perf_counter()
+        setups.append(1e3 * (t1 - t0))
+        times.append(1e3 * (t2 - t1))
+    cost = graph.total_cost()
+    stopped_by_action = bool(graph.optimizer.terminate())
+    if not np.isfinite(cost) or iterations == 0 or (algorithm == "gn" and iterations < MAX_ITERATIONS and not stopped_by_action):
+        return Solve(np.nan, float(np.median(setups)), iterations, 0, "", np.nan, np.nan, failed="the linear solve failed (g2o stops without raising)")
+    termination = "" if iterations == MAX_ITERATIONS else ("gain below 1e-05 (terminate action)" if stopped_by_action else "no damped step lowered the cost")
+    rmse = 100.0 * translational_rmse(graph.positions(), world.t_world_camera)
+    return Solve(float(np.median(times)), float(np.median(setups)), iterations, 0, termination, cost, rmse)
+
+
 def solve_ours(data: ProblemData, world: sequences.World, variant: str, *, regime: str, repeats: int) -> Solve:
     """Build, prepare and solve one variant `repeats` times; medians of the times."""
     options = {"equal": OURS_EQUAL_WORK, "same": OURS_SAME_RULE, "default": {}}[regime]
@@ -245,34 +301,39 @@ class CostCheck:
 
     ours: dict[str, float]
     peer: dict[str, float]
+    g2o: dict[str, float] | None = None  # no "prior": g2o fixes the first camera instead
 
 
-def cost_check(data: ProblemData) -> tuple[CostCheck, CostCheck, int]:
-    """Evaluate both problems at the same states, factor type by factor type: the initial
-    values, and the state P-wo converges to (its points mapped to world points). Also
-    returns the number of point observations."""
+def cost_check(data: ProblemData, *, g2o: bool = True) -> tuple[CostCheck, CostCheck, int]:
+    """Evaluate the problems (ours P-wo, gtsam's graph, g2o's graph if `g2o`) at the same
+    states, factor type by factor type: the initial values, and the state P-wo converges
+    to (its points mapped to world points). Also returns the number of point observations."""
     problem = build_problem(data, "P-wo")
     peer = build_peer_graph(data)
+    g2o_graph = peer_g2o.build_g2o_graph(data, points_world=initial_points_world(data), algorithm="gn") if g2o else None
 
     def at(state: State) -> CostCheck:
         costs = problem.linearize(state).costs
         values = peer_values(state.poses.R_world_camera, state.poses.t_world_camera, problem.point_positions(state))
         ours = {name: float(costs.get(name, 0.0)) for name in peer.groups}
         theirs = {name: float(sum(peer.graph.at(k).error(values) for k in idx)) for name, idx in peer.groups.items()}
-        return CostCheck(ours, theirs)
+        if g2o_graph is None:
+            return CostCheck(ours, theirs)
+        g2o_graph.set_state(state.poses.R_world_camera, state.poses.t_world_camera, problem.point_positions(state))
+        return CostCheck(ours, theirs, g2o_graph.costs())
 
     solved, _ = optimize(problem, method="gn", max_iterations=MAX_ITERATIONS)
     return at(problem.initial_state()), at(solved), len(data.point_obs)
 
 
 def threading_note() -> str:
-    """Which threading runtimes the loaded gtsam uses (from the process's mapped libraries)."""
+    """Which threading runtimes the loaded gtsam and g2o use (from the process's mapped libraries)."""
     with open("/proc/self/maps") as f:
         maps = f.read()
     found = [name for name in ("libtbb", "libgomp", "libomp", "libiomp") if name in maps]
     if not found:
-        return "gtsam: no TBB/OpenMP loaded (single-threaded)"
-    return f"gtsam: {', '.join(found)} loaded (may run multi-threaded)"
+        return "gtsam, g2o: no TBB/OpenMP loaded (single-threaded)"
+    return f"gtsam, g2o: {', '.join(found)} loaded (may run multi-threaded)"
 
 
 def machine_line() -> str:
@@ -287,7 +348,7 @@ def machine_line() -> str:
     return (
         f"# python {platform.python_version()}, {cpu}, {os.cpu_count()} cpus, "
         f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, "
-        f"gtsam {importlib.metadata.version('gtsam')}; {threading_note()}; load average {os.getloadavg()[0]:.2f}"
+        f"gtsam {importlib.metadata.version('gtsam')}, g2opy {importlib.metadata.version('g2opy') if peer_g2o else '(not installed)'}; {threading_note()}; load average {os.getloadavg()[0]:.2f}"
     )
 
 
@@ -304,12 +365,15 @@ def _range(values: Sequence[int]) -> str:
 
 
 def print_table(title: str, solves: dict[str, list[Solve]]) -> None:
-    """Medians over draws per solver (iterations and linearizations: their range), failed
-    solves left out; the ratio is time / gtsam's time. Solves that stopped before 10
-    iterations or failed are listed with the reason."""
+    """Medians over draws per solver (iterations and linearizations: their range; "-"
+    where the bindings do not tell), failed solves left out; the ratios are time / each
+    peer's time. Solves that stopped before 10 iterations or failed are listed with the
+    reason."""
     print(title)
-    print(f"  {'variant':7s} {'time ms':>9s} {'ms/iter':>8s} {'iters':>6s} {'lin':>6s} {'setup ms':>9s} {'RMSE cm':>8s} {'vs gtsam':>9s}")
-    peer_time = _median([s.time_ms for s in solves[PEER]])
+    peers = [name for name in (PEER, *G2O_PEERS) if name in solves]
+    ratio_heads = " ".join(f"{'vs ' + name:>10s}" for name in peers)
+    print(f"  {'variant':7s} {'time ms':>9s} {'ms/iter':>8s} {'iters':>6s} {'lin':>6s} {'setup ms':>9s} {'RMSE cm':>8s} {ratio_heads}")
+    peer_times = {name: _median([s.time_ms for s in solves[name]]) for name in peers}
     for name, rows in solves.items():
         ok = [s for s in rows if not s.failed]
         if not ok:
@@ -317,11 +381,9 @@ def print_table(title: str, solves: dict[str, list[Solve]]) -> None:
             continue
         t = _median([s.time_ms for s in ok])
         per_iter = _median([s.time_ms / max(s.iterations, 1) for s in ok])
-        print(
-            f"  {name:7s} {t:9.2f} {per_iter:8.3f} {_range([s.iterations for s in ok]):>6s} "
-            f"{_range([s.linearizations for s in ok]):>6s} {_median([s.setup_ms for s in ok]):9.2f} "
-            f"{_median([s.rmse_cm for s in ok]):8.3f} {t / peer_time:8.2f}x"
-        )
+        lin = _range([s.linearizations for s in ok]) if all(s.linearizations for s in ok) else "-"
+        ratios = " ".join(f"{t / peer_times[p]:9.2f}x" for p in peers)
+        print(f"  {name:7s} {t:9.2f} {per_iter:8.3f} {_range([s.iterations for s in ok]):>6s} {lin:>6s} {_median([s.setup_ms for s in ok]):9.2f} {_median([s.rmse_cm for s in ok]):8.3f} {ratios}")
     notes: dict[tuple[str, str], list[int]] = {}
     for name, rows in solves.items():
         for s in rows:
@@ -335,40 +397,56 @@ def print_table(title: str, solves: dict[str, list[Solve]]) -> None:
 
 
 def print_cost_check(initial: CostCheck, solved: CostCheck) -> None:
-    """Per factor type: ours (P-wo) vs gtsam at the initial values and at P-wo's solution."""
-    print("  same problem? Σ ½|r|² (whitened) per factor type, run 0, ours P-wo vs the gtsam graph at the same state:")
-    print(f"    {'factor':15s} {'initial: ours':>14s} {'gtsam':>14s} {'gtsam/ours':>11s}   {'P-wo solution: ours':>20s} {'gtsam':>12s} {'gtsam/ours':>11s}")
+    """Per factor type: ours (P-wo), and gtsam's and g2o's costs as ratios to ours, at the
+    initial values and at P-wo's solution. g2o has no prior (its first camera is fixed):
+    its total is compared with ours without the prior."""
+    peers = "gtsam and g2o graphs" if initial.g2o is not None else "gtsam graph"
+    print(f"  same problem? Σ ½|r|² (whitened) per factor type, run 0, ours P-wo vs the {peers} at the same state (ratios to ours):")
+    print(f"    {'factor':15s} {'initial: ours':>14s} {'gtsam':>11s} {'g2o':>11s}   {'P-wo solution: ours':>20s} {'gtsam':>11s} {'g2o':>11s}")
 
-    def cols(o: float, p: float, width: int) -> str:
-        ratio = f"{p / o:11.6f}" if o > 0 else f"{'-':>11s}"
-        return f"{o:{width}.6g} {p:{width - 2 if width > 14 else width}.6g} {ratio}"
+    def ratio(o: float, p: float | None) -> str:
+        return f"{p / o:11.6f}" if p is not None and o > 1e-9 else f"{'-':>11s}"  # "-": nothing to compare (both ~0)
 
-    for name in initial.peer:
-        print(f"    {name:15s} {cols(initial.ours[name], initial.peer[name], 14)}   {cols(solved.ours[name], solved.peer[name], 20)}")
-    tot = lambda c: (sum(c.ours.values()), sum(c.peer.values()))  # noqa: E731
-    print(f"    {'total':15s} {cols(*tot(initial), 14)}   {cols(*tot(solved), 20)}")
+    def cells(check: CostCheck, name: str, width: int) -> str:
+        if name == "total":
+            ours = sum(check.ours.values())
+            g2o = ratio(ours - check.ours["prior"], None if check.g2o is None else sum(check.g2o.values()))
+            return f"{ours:{width}.6g} {ratio(ours, sum(check.peer.values()))} {g2o}"
+        g2o_cost = None if check.g2o is None else check.g2o.get(name)
+        return f"{check.ours[name]:{width}.6g} {ratio(check.ours[name], check.peer[name])} {ratio(check.ours[name], g2o_cost)}"
+
+    for name in [*initial.peer, "total"]:
+        print(f"    {name:15s} {cells(initial, name, 14)}   {cells(solved, name, 20)}")
+    if initial.g2o is not None:
+        print("    (g2o fixes the first camera instead of a prior: its total is compared with ours without the prior)")
 
 
-def run_sequence(seq: str, *, runs: int, repeats: int, seed: int) -> None:
-    """Every regime on `runs` draws of sequence `seq`; prints the cost check and a table per regime."""
+def run_sequence(seq: str, *, runs: int, repeats: int, seed: int, g2o: bool) -> None:
+    """Every regime on `runs` draws of sequence `seq`; prints the cost check and a table
+    per regime (g2o's two algorithms as peers too if `g2o`)."""
     world = sequences.make_world(seq, seed=seed)
-    names = [*VARIANTS, PEER]
+    g2o_names = list(G2O_PEERS) if g2o else []
+    names = [*VARIANTS, PEER, *g2o_names]
     solves: dict[str, dict[str, list[Solve]]] = {regime: {name: [] for name in names} for regime in REGIMES}
     for r in range(runs):
         data = montecarlo.make_problem_data(world, np.random.default_rng([seed, r]))
         if r == 0:
-            initial, solved, n_obs = cost_check(data)
+            initial, solved, n_obs = cost_check(data, g2o=g2o)
         for regime, by_name in solves.items():
             for variant in VARIANTS:
                 by_name[variant].append(solve_ours(data, world, variant, regime=regime, repeats=repeats))
             by_name[PEER].append(solve_peer(data, world, equal_work=regime == "equal", repeats=repeats))
+            for name in g2o_names:
+                by_name[name].append(solve_g2o(data, world, name, regime=regime, repeats=repeats))
     n_points = len(data.point_anchor)
     print(f"\n## sequence {seq}: {len(world.t_world_camera)} cameras, {n_points} points, {n_obs} point observations; {runs} draws (seed {seed}), median of {repeats} repeats per draw")
     print_cost_check(initial, solved)
     equal = solves["equal"]
     print(
         f"  final cost after 10 iterations (median): ours P-wo {_median([s.final_cost for s in equal['P-wo']]):.6g}, "
-        f"gtsam {_median([s.final_cost for s in equal[PEER]]):.6g} (gtsam's points are 3-DoF: they may leave their anchor rays)"
+        f"gtsam {_median([s.final_cost for s in equal[PEER]]):.6g}"
+        + "".join(f", {name} {_median([s.final_cost for s in equal[name]]):.6g}" for name in g2o_names)
+        + " (the peers' points are 3-DoF: they may leave their anchor rays; g2o's cost has no prior term)"
     )
     for regime, title in REGIMES.items():
         print_table(title, solves[regime])
@@ -380,12 +458,15 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=5, help="noise draws per sequence")
     parser.add_argument("--repeats", type=int, default=3, help="timing repeats per draw (median)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--no-g2o", action="store_true", help="gtsam as the only peer")
     args = parser.parse_args()
     if args.runs < 1 or args.repeats < 1:
         parser.error("--runs and --repeats must be at least 1")
+    if peer_g2o is None and not args.no_g2o:
+        parser.error("g2opy is not installed (bash scripts/setup.sh --test installs it); --no-g2o runs without the g2o peer")
     print(machine_line())
     for seq in args.sequence or ["a", "b"]:
-        run_sequence(seq, runs=args.runs, repeats=args.repeats, seed=args.seed)
+        run_sequence(seq, runs=args.runs, repeats=args.repeats, seed=args.seed, g2o=not args.no_g2o)
 
 
 if __name__ == "__main__":
