@@ -21,6 +21,7 @@ import dataclasses
 import pathlib
 import threading
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
@@ -74,6 +75,15 @@ class SequenceSettings:
             raise ValueError("image noise and blur must be >= 0, exposure in [0, 1)")
 
 
+class _CachedFrame(NamedTuple):
+    """What the pipeline reads of a rendered frame: both images (H, W) uint8 and the left
+    view's plane ids (H, W) int16."""
+
+    left_image: np.ndarray
+    right_image: np.ndarray
+    left_plane_id: np.ndarray
+
+
 class SyntheticSequence:
     """A rendered scene read like an EuRoC folder, frames rendered on demand.
 
@@ -85,10 +95,11 @@ class SyntheticSequence:
     and the rates in use, `camera_rate_hz` and `imu_rate_hz` (the settings', else the rig's).
     Rendering a pair (about 45 per second for the default rig) is
     faster than reading its PNGs back, so frames are not written anywhere: the last
-    `cache_frames` pairs are kept in memory (about 5 MB each at 752×480 with their depth and
-    plane ids: enough for the pipeline's read-ahead of 8 frames and a keyframe's plane ids
-    asked for after it), and each frame's image noise has its own seed,
-    so any frame renders the same whenever it is asked for. The ground truth is the body's
+    `cache_frames` frames read are kept in memory, what the pipeline asks for again (both
+    images and the left plane ids, 1.4 MB at 752×480: enough for the pipeline's read-ahead
+    of 8 frames and a keyframe's plane ids asked for after it); `views(i)`, with the depths,
+    renders anew. Each frame's image noise has its own seed, so any frame renders the same
+    whenever it is asked for. The ground truth is the body's
     (`ground_truth_frame` "body", as `render` writes it to `state_groundtruth_estimate0`), the
     left camera in it `T_truth_rect0` = `T_body_rect0`.
     """
@@ -119,7 +130,7 @@ class SyntheticSequence:
         self.T_truth_rect0 = np.asarray(self.T_body_cam0, dtype=float)  # (4, 4) the left camera in the body frame
         self.ground_truth_valid = np.ones(len(t), bool)
         self.plane_table = scene.planes
-        self._cache: collections.OrderedDict[int, tuple[View, View]] = collections.OrderedDict()
+        self._cache: collections.OrderedDict[int, _CachedFrame] = collections.OrderedDict()
         self._cache_frames = cache_frames
         self._cache_lock = threading.Lock()
 
@@ -150,25 +161,32 @@ class SyntheticSequence:
         return "IMU"
 
     def views(self, index: int) -> tuple[View, View]:
-        """Left and right views of frame `index` (image, depth along z in m, plane ids)."""
+        """Left and right views of frame `index` (image, depth along z in m, plane ids),
+        rendered (not cached: the depths are 60 % of a pair and only writers need them)."""
         index = range(len(self))[index]
-        with self._cache_lock:  # the frames are read on a worker thread, the oracle's plane ids on another
-            cached = self._cache.get(index)
-            if cached is not None:
-                self._cache.move_to_end(index)
-                return cached
         s = self.settings
         T = self.T_world_rect0[index]
         gain = 1.0 + s.exposure * np.sin(2.0 * np.pi * self.timestamps_ns[index] * 1e-9 / 7.0)
         if self.scene.exposure is not None:
             gain *= self.scene.exposure.gain(float(self.timestamps_ns[index]) * 1e-9)
         rng = np.random.default_rng([s.seed, 0x1A6E, index])
-        pair = render_stereo(self.scene, self.camera, T[:3, :3], T[:3, 3], gain=gain, blur_sigma_px=s.blur_px, noise_sigma=s.image_noise, rng=rng)
+        return render_stereo(self.scene, self.camera, T[:3, :3], T[:3, 3], gain=gain, blur_sigma_px=s.blur_px, noise_sigma=s.image_noise, rng=rng)
+
+    def _frame(self, index: int) -> _CachedFrame:
+        """Frame `index`'s images and left plane ids, from the cache or rendered into it."""
+        index = range(len(self))[index]
+        with self._cache_lock:  # the frames are read on a worker thread, the oracle's plane ids on another
+            cached = self._cache.get(index)
+            if cached is not None:
+                self._cache.move_to_end(index)
+                return cached
+        left, right = self.views(index)
+        frame = _CachedFrame(left.image, right.image, left.plane_id)
         with self._cache_lock:
-            self._cache[index] = pair
+            self._cache[index] = frame
             while len(self._cache) > self._cache_frames:
                 self._cache.popitem(last=False)
-        return pair
+        return frame
 
     def left_depth(self, index: int) -> np.ndarray:
         """Depth (H, W) float32 of frame `index`'s left view (m along the camera's z, inf
@@ -179,16 +197,21 @@ class SyntheticSequence:
         return render_view(self.scene, self.camera, T[:3, :3], T[:3, 3]).depth
 
     def left_plane_ids(self, index: int) -> np.ndarray:
-        """Plane ids (H, W) int of frame `index`'s left view (-1 where no plane is hit),
-        rendered without the frame cache (as `views(index)[0].plane_id`, without the images)."""
+        """Plane ids (H, W) int16 of frame `index`'s left view (-1 where no plane is hit):
+        the cached frame's if it is there (a keyframe's, asked for by the oracle segmenter
+        just after it was read), else rendered without the images and not cached."""
         index = range(len(self))[index]
+        with self._cache_lock:
+            cached = self._cache.get(index)
+        if cached is not None:
+            return cached.left_plane_id
         T = self.T_world_rect0[index]
         return render_view(self.scene, self.camera, T[:3, :3], T[:3, 3]).plane_id
 
     def rectified_pair(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right uint8 images (H, W) of frame `index`."""
-        left, right = self.views(index)
-        return left.image, right.image
+        frame = self._frame(index)
+        return frame.left_image, frame.right_image
 
 
 def render_sequence(scene: Scene, out: pathlib.Path | str, *, settings: SequenceSettings = SequenceSettings(), on_frame: Callable[[int, int], None] | None = None) -> int:

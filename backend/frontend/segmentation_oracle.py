@@ -15,7 +15,7 @@ from backend.frontend.segmentation import NO_PLANE, PlaneMasks
 
 
 class OracleSegmenter:
-    """Ground-truth instance masks of a rendered sequence (`views(i)` with `plane_id`)."""
+    """Ground-truth instance masks of a rendered sequence (its `left_plane_ids(i)`)."""
 
     name = "oracle (ground-truth masks of the rendered scene)"
 
@@ -27,7 +27,7 @@ class OracleSegmenter:
 
     def segment_frame(self, index: int) -> PlaneMasks:
         """Instance masks of frame `index`'s left image."""
-        plane_id = np.asarray(self.source.views(index)[0].plane_id)
+        plane_id = np.asarray(self.source.left_plane_ids(index))
         ids, counts = np.unique(plane_id[plane_id >= 0], return_counts=True)
         keep = counts >= self.min_share * plane_id.size
         ids = ids[keep][np.argsort(-counts[keep], kind="stable")]

@@ -110,6 +110,25 @@ def test_on_demand_sequence_matches_the_written_folder(room: pathlib.Path) -> No
         seq.views(len(seq))
 
 
+def test_the_frame_cache_keeps_what_the_pipeline_reads_again() -> None:
+    """Images and the left plane ids come from the cache as rendered (the oracle segmenter
+    asks for a keyframe's plane ids after reading it), frames past the cache render the
+    same again, and a cached frame holds no depths (1.4 MB instead of 5 MB at 752×480)."""
+    from backend.data.synthetic import SyntheticSequence
+
+    seq = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=1.0), cache_frames=2)
+    for k in (5, 6, 7, 5):  # 5 is evicted by 7, then rendered again
+        left_view, right_view = seq.views(k)
+        left, right = seq.rectified_pair(k)
+        np.testing.assert_array_equal(left, left_view.image)
+        np.testing.assert_array_equal(right, right_view.image)
+        np.testing.assert_array_equal(seq.left_plane_ids(k), left_view.plane_id)
+    np.testing.assert_array_equal(seq.left_plane_ids(12), seq.views(12)[0].plane_id)  # not cached: rendered
+    cached = list(seq._cache.values())
+    assert len(cached) == 2
+    assert all(sum(a.nbytes for a in frame) <= 1.5 * 2**20 for frame in cached)
+
+
 def test_speed_moves_along_the_same_path_faster() -> None:
     """`speed` F: the pose at time t is the speed-1 pose at time F·t (same path, F times faster),
     and the rate of the cameras (hence the motion between frames) follows."""
