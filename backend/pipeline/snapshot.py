@@ -80,12 +80,13 @@ class FrameTrajectory:
 @dataclasses.dataclass(frozen=True)
 class PointLandmarks:
     """Triangulated points: world positions (m), plane id (-1: none), anchor keyframe, and
-    the state of the last detection that tested them (NOT_TESTED / INLIER / OUTLIER)."""
+    the state of the last detection that tested them (NOT_TESTED / INLIER / OUTLIER). The
+    integers are int32: every snapshot the debugger keeps holds the whole map."""
 
-    id: np.ndarray  # (P,) stable landmark ids
-    p_world: np.ndarray  # (P, 3)
-    plane: np.ndarray  # (P,)
-    anchor: np.ndarray  # (P,) keyframe index
+    id: np.ndarray  # (P,) int32 stable landmark ids
+    p_world: np.ndarray  # (P, 3) float64
+    plane: np.ndarray  # (P,) int32
+    anchor: np.ndarray  # (P,) int32 keyframe index
     detection: np.ndarray  # (P,) uint8
 
     def __len__(self) -> int:
@@ -97,11 +98,11 @@ class LineLandmarks:
     """Triangulated lines as world segments (m): the points of the infinite line nearest
     the anchor observation's endpoint rays. Other fields as for points."""
 
-    id: np.ndarray
-    segment_world: np.ndarray  # (L, 2, 3)
-    plane: np.ndarray
-    anchor: np.ndarray
-    detection: np.ndarray
+    id: np.ndarray  # (L,) int32
+    segment_world: np.ndarray  # (L, 2, 3) float64
+    plane: np.ndarray  # (L,) int32
+    anchor: np.ndarray  # (L,) int32
+    detection: np.ndarray  # (L,) uint8
 
     def __len__(self) -> int:
         return int(self.id.shape[0])

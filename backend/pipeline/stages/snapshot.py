@@ -56,8 +56,9 @@ def build_snapshot(
     l_ids = np.flatnonzero(Lm.ok[:])
     l_det = np.zeros(len(Lm), np.uint8)
     l_det[det_state[2]] = det_state[3]
-    points = PointLandmarks(frozen(p_ids), frozen(P.p_world[p_ids].copy()), frozen(P.plane[p_ids].copy()), frozen(P.anchor[p_ids].copy()), frozen(p_det[p_ids]))
-    lines = LineLandmarks(frozen(l_ids), frozen(the_map.segments_world(l_ids)), frozen(Lm.plane[l_ids].copy()), frozen(Lm.anchor[l_ids].copy()), frozen(l_det[l_ids]))
+    i32 = np.int32  # the snapshot's integers (snapshot.PointLandmarks)
+    points = PointLandmarks(frozen(p_ids.astype(i32)), frozen(P.p_world[p_ids].copy()), frozen(P.plane[p_ids].astype(i32)), frozen(P.anchor[p_ids].astype(i32)), frozen(p_det[p_ids]))
+    lines = LineLandmarks(frozen(l_ids.astype(i32)), frozen(the_map.segments_world(l_ids)), frozen(Lm.plane[l_ids].astype(i32)), frozen(Lm.anchor[l_ids].astype(i32)), frozen(l_det[l_ids]))
     planes = []
     for q in range(len(the_map.planes)):
         n_p, n_l = int(np.sum((P.plane[:] == q) & P.ok[:])), int(np.sum((Lm.plane[:] == q) & Lm.ok[:]))
