@@ -99,6 +99,9 @@ def _clicks(page, n: int, *, pause_ms: float = 0.0) -> tuple[list[float], list[f
 def _room_debugger(*, duration_s: float | None = None):
     """The debugger on the stereo pipeline over the rendered room (as `coplanar serve`)."""
     from app.serve_command import DEFAULT_DURATION_S
+    from backend.common.allocator import limit_arenas
+
+    limit_arenas()  # as `coplanar serve` does before the engine's threads start
     from backend.pipeline.factory import EngineConfig, make_engine
     from tests.browser.conftest import free_port
     from viewer.app import Debugger

@@ -12,9 +12,14 @@ import time
 import traceback
 from collections.abc import Callable
 
+from backend.common.allocator import release_free_memory
 from viewer.commands import Command, CommandQueue
 
 log = logging.getLogger(__name__)
+
+# Free memory goes back to the system whenever the worker falls idle (after the step ahead),
+# and while playing at most this often (a trim costs 1-80 ms).
+TRIM_PERIOD_PLAYING_S = 5.0
 
 
 class Worker:
@@ -48,6 +53,7 @@ class Worker:
         self._done = done
         self._idle = idle
         self._stopped = threading.Event()
+        self._trimmed_at = 0.0
         self._thread = threading.Thread(target=self._run, name="coplanar-engine", daemon=True)
 
     def start(self) -> None:
@@ -98,5 +104,8 @@ class Worker:
                     self.working.clear()
                 if command is not Command.AHEAD and not self.playing.is_set() and self._idle is not None and not self.commands.pending() and self._idle():
                     self.commands.put(Command.AHEAD)  # before task_done: wait_idle waits for it too
+                elif not self.commands.pending() and (not self.playing.is_set() or time.monotonic() - self._trimmed_at > TRIM_PERIOD_PLAYING_S):
+                    release_free_memory()  # what the commands freed, back to the system (backend/common/allocator.py)
+                    self._trimmed_at = time.monotonic()
                 if not from_timer:
                     self.commands.task_done()
