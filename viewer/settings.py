@@ -9,13 +9,14 @@ import pathlib
 @dataclasses.dataclass(frozen=True)
 class ViewerSettings:
     """`history`: keyframes kept for scrubbing (oldest dropped first), and at most
-    `history_mb` MiB of their snapshots' arrays (the keyframe images weigh most). `rate_hz`: default
+    `history_mb` MiB of their snapshots' arrays (the map's points weigh most: each snapshot
+    holds the whole map). `rate_hz`: default
     Play rate. `compare`: compute the -wo | -r | -w comparison after each step. `plots`:
     draw the plots over time (in the background, after each update). `sweep`: a `coplanar
     sweep` output folder the Sweep tab shows (None: none)."""
 
     history: int = 500
-    history_mb: float = 150.0
+    history_mb: float = 100.0
     rate_hz: float = 5.0
     compare: bool = True
     plots: bool = True
