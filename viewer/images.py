@@ -4,9 +4,13 @@ only: JPEG blurs a one-pixel pattern), and the keyframe's left image with its fe
 
 from __future__ import annotations
 
+import collections
 from collections.abc import Mapping
+from typing import Literal
 
 import numpy as np
+import viser
+from viser._scene_api import _encode_image_binary
 
 from backend.optim.hessian_image import render_hessian, render_side_by_side
 from backend.optim.structure import HessianStructure
@@ -27,6 +31,38 @@ def hessian_image(structure: HessianStructure, *, max_px: int = IMAGE_PX) -> np.
     Windows of more than `max_px` parameters keep the camera | plane block readable and
     pool the landmark blocks (see :func:`pooled_note`)."""
     return np.asarray(render_hessian(structure.pattern, structure.groups, max_px=max_px, legend=False, focus=True))
+
+
+def set_encoded(handle: viser.GuiImageHandle, data: bytes, *, image_format: Literal["jpeg", "png"]) -> None:
+    """Send `data`, an image already encoded as `image_format`, as the image of `handle`,
+    without decoding and encoding it again (the snapshot's keyframe JPEG, a cached Hessian
+    PNG). viser 1.1.1's image handle sends its `_format` and `_data` properties; its `.image`
+    array is left as it was, so callers keep what they need to show the image large."""
+    handle._format = image_format
+    handle._data = data
+
+
+class EncodedHessians:
+    """PNG bytes of the Hessian images of the last `size` structures shown (keyed by the
+    structure object, which a snapshot keeps): scrubbing back shows a kept keyframe
+    without rendering and encoding its Hessian again."""
+
+    def __init__(self, *, size: int = 64) -> None:
+        self._size = size
+        self._png: collections.OrderedDict[int, tuple[HessianStructure, bytes]] = collections.OrderedDict()
+
+    def png(self, structure: HessianStructure) -> bytes:
+        """The PNG of :func:`hessian_image` of `structure`."""
+        key = id(structure)
+        kept = self._png.get(key)
+        if kept is not None and kept[0] is structure:
+            self._png.move_to_end(key)
+            return kept[1]
+        _, data = _encode_image_binary(hessian_image(structure), "png")
+        self._png[key] = (structure, data)  # the structure is held, so its id is not reused meanwhile
+        while len(self._png) > self._size:
+            self._png.popitem(last=False)
+        return data
 
 
 def compare_image(structures: Mapping[Variant, HessianStructure], *, max_px: int = 200) -> np.ndarray:

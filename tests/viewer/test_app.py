@@ -8,6 +8,7 @@ import dataclasses
 import socket
 from collections.abc import Iterator
 
+import cv2
 import numpy as np
 import pytest
 
@@ -98,6 +99,12 @@ def _green_column(rgb: np.ndarray) -> int:
     return int(round(np.flatnonzero(row[:, 1] - row[:, 0] > 60).mean()))
 
 
+def _sent_image(handle) -> np.ndarray:
+    """The image a handle sends to the page (its encoded bytes, decoded to RGB)."""
+    rgb = cv2.imdecode(np.frombuffer(handle._data, np.uint8), cv2.IMREAD_COLOR)
+    return cv2.cvtColor(rgb, cv2.COLOR_BGR2RGB)
+
+
 def test_keyframe_image_is_shown_and_follows_scrubbing(image_debugger) -> None:
     d = image_debugger
     assert not d.keyframe_tab.image.visible  # nothing shown yet
@@ -107,7 +114,8 @@ def test_keyframe_image_is_shown_and_follows_scrubbing(image_debugger) -> None:
     newest = d.history[-1]
     assert newest.keyframe == 2 and newest.image is not None
     assert d.keyframe_tab.image.visible
-    shown = d.keyframe_tab.image.image
+    assert d.keyframe_tab.image._data == newest.image.jpeg  # the snapshot's JPEG, not decoded and encoded again
+    shown = _sent_image(d.keyframe_tab.image)
     assert shown.shape == (H, W, 3)
     np.testing.assert_array_equal(shown, decode_keyframe_image(newest.image))
     assert _green_column(shown) == 30
@@ -119,10 +127,27 @@ def test_keyframe_image_is_shown_and_follows_scrubbing(image_debugger) -> None:
     d.submit("show", 0)
     d.wait_idle()
     assert d.keyframe_tab.image.visible
-    np.testing.assert_array_equal(d.keyframe_tab.image.image, decode_keyframe_image(d.history[0].image))
-    assert _green_column(d.keyframe_tab.image.image) == 10
+    np.testing.assert_array_equal(_sent_image(d.keyframe_tab.image), decode_keyframe_image(d.history[0].image))
+    assert _green_column(_sent_image(d.keyframe_tab.image)) == 10
     assert "0 lost" in d.keyframe_tab.tracking_text.content
     assert "tracking lost at frame 0" in d.report_tab.markdown.content
+
+
+def test_hessian_image_follows_scrubbing_and_is_encoded_once(sim_debugger) -> None:
+    from viewer import images
+
+    d = sim_debugger
+    for _ in range(3):
+        d.submit("step")
+    d.wait_idle()
+    newest_png = d.hessian_tab.image._data
+    np.testing.assert_array_equal(_sent_image(d.hessian_tab.image), images.hessian_image(d.history[-1].hessian))
+    d.submit("show", 0)
+    d.wait_idle()
+    np.testing.assert_array_equal(_sent_image(d.hessian_tab.image), images.hessian_image(d.history[0].hessian))
+    d.submit("show", 2)
+    d.wait_idle()
+    assert d.hessian_tab.image._data is newest_png  # shown again from the kept PNG, not rendered anew
 
 
 def test_keyframe_image_is_hidden_for_the_monte_carlo_engine(sim_debugger) -> None:

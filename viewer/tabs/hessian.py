@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import viser
 
+from backend.optim.structure import HessianStructure
 from backend.pipeline.engine import Engine
 from viewer import images
 from viewer.commands import Command
@@ -19,6 +20,8 @@ class HessianTab:
     def __init__(self, actions: TabActions, settings: ViewerSettings) -> None:
         self.actions = actions
         self._compare_initially = settings.compare
+        self._encoded = images.EncodedHessians()
+        self._shown_structure: HessianStructure | None = None  # rendered again only to show it large
 
     def build(self, gui: viser.GuiApi) -> None:
         self.legend = gui.add_markdown("no window optimized yet")
@@ -31,10 +34,12 @@ class HessianTab:
 
     def show(self, shown: Shown) -> None:
         if shown.snapshot.hessian is not None:
-            self.image.image = images.hessian_image(shown.snapshot.hessian)
+            self._shown_structure = shown.snapshot.hessian
+            images.set_encoded(self.image, self._encoded.png(shown.snapshot.hessian), image_format="png")
             self.legend.content = images.legend_markdown(shown.snapshot.hessian)
 
     def clear(self) -> None:
+        self._shown_structure = None
         self.image.image = images.blank()
         self.legend.content = "no window optimized yet"
         self.compare_image.image = images.blank()
@@ -51,4 +56,5 @@ class HessianTab:
     def enlarge(self, client: viser.ClientHandle | None) -> None:
         if client is None:
             return
-        open_large_view(client, [("H = JᵀJ of the window", self.image.image), ("the newest window under -wo | -r | -w", self.compare_image.image)], image_format="png")
+        window = images.hessian_image(self._shown_structure) if self._shown_structure is not None else images.blank()
+        open_large_view(client, [("H = JᵀJ of the window", window), ("the newest window under -wo | -r | -w", self.compare_image.image)], image_format="png")

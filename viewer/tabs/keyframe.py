@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import viser
 
+from backend.pipeline.snapshot import KeyframeImage
 from viewer import images
 from viewer.settings import ViewerSettings
 from viewer.tabs.base import Shown, TabActions, open_large_view
@@ -16,6 +17,7 @@ class KeyframeTab:
 
     def __init__(self, actions: TabActions, settings: ViewerSettings) -> None:
         self.actions = actions
+        self._shown_image: KeyframeImage | None = None  # decoded only to show it large
 
     def build(self, gui: viser.GuiApi) -> None:
         self.image = gui.add_image(images.blank(), label="left image", format="jpeg", jpeg_quality=90, visible=False)
@@ -26,8 +28,9 @@ class KeyframeTab:
 
     def show(self, shown: Shown) -> None:
         snapshot = shown.snapshot
+        self._shown_image = snapshot.image
         if snapshot.image is not None:
-            self.image.image = images.keyframe_image(snapshot.image)
+            images.set_encoded(self.image, snapshot.image.jpeg, image_format="jpeg")  # the snapshot's JPEG as it is, encoded once
             self.image.label = f"keyframe {snapshot.keyframe}: left image"
             self.tracking_text.content = images.tracking_markdown(snapshot.tracking)
         else:
@@ -36,6 +39,7 @@ class KeyframeTab:
             self.image.visible = self.legend.visible = snapshot.image is not None
 
     def clear(self) -> None:
+        self._shown_image = None
         self.image.image = images.blank()
         self.image.visible = self.legend.visible = False
         self.tracking_text.content = "no keyframe yet"
@@ -44,7 +48,7 @@ class KeyframeTab:
         """The image at its full size in a floating window of the clicking tab."""
         if client is None:
             return
-        if not self.image.visible:
+        if self._shown_image is None:
             client.add_notification("No keyframe image", "This engine's snapshots have no image.", auto_close_seconds=5.0)
             return
-        open_large_view(client, [(self.image.label or "keyframe image", self.image.image)], image_format="jpeg")
+        open_large_view(client, [(self.image.label or "keyframe image", images.keyframe_image(self._shown_image))], image_format="jpeg")
