@@ -96,7 +96,7 @@ def _clicks(page, n: int, *, pause_ms: float = 0.0) -> tuple[list[float], list[f
     return updated, rendered
 
 
-def _room_debugger(*, duration_s: float | None = None):
+def _room_debugger(*, duration_s: float | None = None, history_mb: float | None = None):
     """The debugger on the stereo pipeline over the rendered room (as `coplanar serve`)."""
     from app.serve_command import DEFAULT_DURATION_S
     from backend.common.allocator import limit_arenas
@@ -105,9 +105,11 @@ def _room_debugger(*, duration_s: float | None = None):
     from backend.pipeline.factory import EngineConfig, make_engine
     from tests.browser.conftest import free_port
     from viewer.app import Debugger
+    from viewer.settings import ViewerSettings
 
     engine = make_engine(EngineConfig(scene="room", duration_s=duration_s or DEFAULT_DURATION_S, interactive=True))
-    debugger = Debugger(engine, port=free_port())
+    settings = ViewerSettings() if history_mb is None else ViewerSettings(history_mb=history_mb)
+    debugger = Debugger(engine, port=free_port(), settings=settings)
     debugger.server.scene.configure_environment_map(hdri=None)
     return debugger
 
@@ -225,7 +227,7 @@ def bench_memory(browser, args: argparse.Namespace) -> None:
     import gc
 
     if args.scene == "room":  # long enough for --steps keyframes (200 s of room's path gave 279)
-        debugger = _room_debugger(duration_s=max(60.0, 0.8 * args.steps))
+        debugger = _room_debugger(duration_s=max(60.0, 0.8 * args.steps), history_mb=args.history_mb)
     else:
         debugger = start_debugger(sequence=args.sequence)
     try:
@@ -244,7 +246,7 @@ def bench_memory(browser, args: argparse.Namespace) -> None:
             gc.collect()
             print(f"{done:6d} {_rss_mib():8.1f} {len(debugger.history):8d} {debugger.session.history.bytes / 2**20:8.1f} {time.perf_counter() - t0:11.1f}", flush=True)
             t0 = time.perf_counter()
-        wait_shown(page, f"{args.steps - 1} (PL-w)")
+        wait_shown(page, f"{debugger.history[-1].keyframe} (PL-w)")  # the newest keyframe (a sequence may end before --steps)
     finally:
         debugger.stop()
 
@@ -261,6 +263,7 @@ def main() -> None:
     parser.add_argument("--points", type=int, default=100_000)
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--history-mb", type=float, default=None, help="memory, room: the history's byte cap (default: the debugger's)")
     parser.add_argument("--width", type=int, default=1400, help="page size in CSS pixels (latency)")
     parser.add_argument("--height", type=int, default=900)
     args = parser.parse_args()
