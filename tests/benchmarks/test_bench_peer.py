@@ -48,13 +48,17 @@ def test_graph_has_every_factor(data_b: ProblemData) -> None:
     assert peer.values.size() == len(data_b.poses) + n_points
 
 
+def _assert_same_projections_and_distance(theirs: dict[str, float], ours: dict[str, float]) -> None:
+    """A peer's projection and distance-prior costs are ours; anchors vanish on the anchor rays."""
+    assert theirs["points"] == pytest.approx(ours["points"], rel=1e-9)
+    assert theirs["distance_prior"] == pytest.approx(ours["distance_prior"], rel=1e-6, abs=1e-9)
+    assert theirs["anchors"] < 1e-12
+
+
 def test_costs_match_ours_factor_by_factor(data_b: ProblemData) -> None:
     initial, solved, _ = bench.cost_check(data_b)
     for check in (initial, solved):
-        # Same projection and distance residuals; anchors are zero on the anchor rays.
-        assert check.peer["points"] == pytest.approx(check.ours["points"], rel=1e-9)
-        assert check.peer["distance_prior"] == pytest.approx(check.ours["distance_prior"], rel=1e-6, abs=1e-9)
-        assert check.peer["anchors"] < 1e-12
+        _assert_same_projections_and_distance(check.peer, check.ours)
         # gtsam's Pose3 Logmap vs our [Log(ΔR), Δt]: equal to second order in the rotation error.
         assert check.peer["prior"] == pytest.approx(check.ours["prior"], rel=1e-3, abs=1e-9)
         assert check.peer["odometry"] == pytest.approx(check.ours["odometry"], rel=1e-3, abs=1e-9)
@@ -88,9 +92,7 @@ def test_g2o_graph_has_every_edge(data_b: ProblemData) -> None:
 def test_g2o_costs_match_ours_factor_by_factor(data_b: ProblemData) -> None:
     initial, solved, _ = bench.cost_check(data_b)
     for check in (initial, solved):
-        assert check.g2o["points"] == pytest.approx(check.ours["points"], rel=1e-9)
-        assert check.g2o["distance_prior"] == pytest.approx(check.ours["distance_prior"], rel=1e-6, abs=1e-9)
-        assert check.g2o["anchors"] < 1e-12
+        _assert_same_projections_and_distance(check.g2o, check.ours)
     # The odometry: zero where ours is (the initial poses follow it), its logarithm taken in
     # another frame away from it (within 1 % at P-wo's solution here).
     assert initial.g2o["odometry"] < 1e-9
