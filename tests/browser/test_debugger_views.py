@@ -135,6 +135,7 @@ def test_ab_run_draws_both_trajectories_and_fills_the_difference(browser, tmp_pa
         for k in (20, 21, 22):
             page.get_by_role("button", name="Step").click()
             wait_shown(page, f"{k} (PL-w)")
+        debugger.wait_idle(timeout=120)  # the step ahead moves A's engine, then B's: compare them once it is done
         assert debugger.session.keyframes == 23 and debugger.engine_b.keyframes == debugger.engine.keyframes
         assert "/ab/trajectory" in debugger.scene._handles
         page.get_by_role("tab", name="Variants").click()
