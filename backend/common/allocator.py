@@ -39,7 +39,7 @@ def limit_arenas(count: int = 2) -> bool:
 
 
 def release_free_memory() -> bool:
-    """Return the free pages of every arena to the system (`malloc_trim(0)`; about a
-    millisecond). True if memory was released."""
+    """Return the free pages of every arena to the system (`malloc_trim(0)`; 1-80 ms,
+    more the more was freed). True if memory was released."""
     libc = _libc()
     return bool(libc is not None and libc.malloc_trim(0) == 1)
