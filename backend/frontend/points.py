@@ -189,6 +189,15 @@ def _best_matches_kernel(rows, cols, dist, n_rows, n_cols, max_distance, ratio):
             best_col[r] = cols[p]
         elif d < second[r]:
             second[r] = d
+    return resolve_matches(best, second, best_col, finite, has_nan, n_cols, max_distance, ratio)
+
+
+@numba.njit(cache=True, nogil=True)
+def resolve_matches(best, second, best_col, finite, has_nan, n_cols, max_distance, ratio):  # pragma: no cover - compiled
+    """The ratio test and the one-to-one check of :func:`best_matches` from each row's
+    closest distance `best`, second closest `second`, closest column `best_col`, number of
+    finite candidates `finite` and whether it had a NaN one `has_nan` (all (n_rows,))."""
+    n_rows = best.size
     col_row = np.full(n_cols, -1, np.int64)
     for r in range(n_rows):
         if finite[r] == 0 or (finite[r] == 1 and has_nan[r]):  # no candidate, or a NaN second: the ratio test fails

@@ -170,9 +170,7 @@ def match_by_projection(
     within `radius_px` of its projection; the closest descriptor wins if its Hamming
     distance is `<= max_hamming` and `< ratio` times the second closest (one-to-one).
     Returns (P,) keypoint index per map point, -1 where unmatched."""
-    from scipy.spatial import cKDTree
-
-    from backend.frontend.points import best_matches, pair_hamming
+    from backend.frontend.radius_match import match_in_radius
 
     out = np.full(len(p_world), -1, dtype=np.int64)
     if len(p_world) == 0 or len(keypoints_uv) == 0:
@@ -184,12 +182,8 @@ def match_by_projection(
     visible = np.flatnonzero(front & camera.in_image(uv))
     if len(visible) == 0:
         return out
-    pairs = cKDTree(uv[visible]).sparse_distance_matrix(cKDTree(keypoints_uv), radius_px, output_type="ndarray")
-    if len(pairs) == 0:
-        return out
-    rows, cols = visible[pairs["i"]], pairs["j"].astype(np.int64)
-    dist = pair_hamming(descriptors[rows], keypoint_descriptors[cols])
-    return best_matches(rows, cols, dist, n_rows=len(p_world), max_distance=max_hamming, ratio=ratio)
+    out[visible] = match_in_radius(uv[visible], descriptors[visible], keypoints_uv, keypoint_descriptors, radius_px=radius_px, max_hamming=max_hamming, ratio=ratio)
+    return out
 
 
 def relocalize(
@@ -203,16 +197,20 @@ def relocalize(
     ratio: float,
     min_inliers: int,
     seed: int = 0,
+    candidates: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Pose without a prediction: descriptor matches between map points and keypoints
     (no spatial gate), then PnP inside RANSAC (OpenCV, 3 px). Returns `(R_world_camera,
     t_world_camera, match)` with `match` (P,) the keypoint of each map point (-1: none or
-    outlier), or None with fewer than `min_inliers` inliers."""
+    outlier), or None with fewer than `min_inliers` inliers. `candidates`: the two nearest
+    keypoints of each map point as :func:`nearest_hamming` gives them for `descriptors`
+    (rows, cols, distances), where the caller has them already (None: searched here)."""
     from backend.frontend.points import best_matches, nearest_hamming
 
     if len(p_world) < min_inliers or len(keypoints_uv) < min_inliers:
         return None
-    rows, cols, dist = nearest_hamming(descriptors, keypoint_descriptors, k=2)  # the ratio test needs the two nearest
+    # The ratio test needs the two nearest.
+    rows, cols, dist = nearest_hamming(descriptors, keypoint_descriptors, k=2) if candidates is None else candidates
     near = dist <= max_hamming
     match = best_matches(rows[near], cols[near], dist[near], n_rows=len(p_world), max_distance=max_hamming, ratio=ratio)
     i = np.flatnonzero(match >= 0)
