@@ -12,7 +12,7 @@ from collections.abc import Callable
 import numpy as np
 
 from backend.frontend.lines import LineSettings, Segments
-from backend.frontend.points import Keypoints, best_matches, pair_hamming
+from backend.frontend.points import Keypoints, best_matches, nearest_hamming, pair_hamming
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.mapping.map import Map
@@ -135,6 +135,16 @@ def last_keyframe_points(the_map: Map, local_points: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.isin(local_points, seen[the_map.points.ok[seen]]))
 
 
+def rows_of(pairs: tuple[np.ndarray, np.ndarray, np.ndarray], subset: np.ndarray, *, n_rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The candidate `pairs` (rows, cols, distances) of the rows in `subset` (indices into
+    `n_rows` rows, no repeats), their rows renumbered as positions in `subset`."""
+    rows, cols, dist = pairs
+    position = np.full(n_rows, -1, np.int64)
+    position[subset] = np.arange(len(subset))
+    keep = position[rows] >= 0
+    return position[rows[keep]], cols[keep], dist[keep]
+
+
 def track_frame(
     camera: PinholeCamera,
     s: TrackSettings,
@@ -186,10 +196,14 @@ def track_frame(
         for R0, t0, how in priors:
             match = match_by_projection(camera, R0, t0, P, D, kp.uv, kp.descriptors, radius_px=3.0 * s.search_radius_px, max_hamming=s.max_hamming, ratio=s.match_ratio)
             candidates.append((refine(camera, s, R0, t0, P, D, kp, match), how))
+    nearest: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # the local map's two nearest keypoints, searched once
     for what, subset in (("the last keyframe", last_keyframe_points(the_map, ids)), ("the local map", np.arange(len(ids)))):
         if len(subset) < s.min_tracking_inliers:
             continue
-        reloc = relocalize(camera, P[subset], D[subset], kp.uv, kp.descriptors, max_hamming=s.max_hamming, ratio=s.match_ratio, min_inliers=s.min_tracking_inliers, seed=s.seed + i)
+        if nearest is None:
+            nearest = nearest_hamming(D, kp.descriptors, k=2)
+        found = rows_of(nearest, subset, n_rows=len(ids))
+        reloc = relocalize(camera, P[subset], D[subset], kp.uv, kp.descriptors, max_hamming=s.max_hamming, ratio=s.match_ratio, min_inliers=s.min_tracking_inliers, seed=s.seed + i, candidates=found)
         if reloc is not None:
             match = np.full(len(ids), -1, np.int64)
             match[subset] = reloc[2]

@@ -11,12 +11,14 @@ import numpy as np
 from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
 from backend.frontend.lines import detect_segments
-from backend.frontend.points import detect_points
+from backend.frontend.points import detect_points, nearest_hamming
 from backend.geometry import so3
+from backend.geometry.camera import PinholeCamera
 from backend.optim.variant import Variant
 from backend.pipeline.engine import EngineCheckpoint
-from backend.pipeline.stages.track import LineAid, Tracked, track_frame
+from backend.pipeline.stages.track import LineAid, Tracked, rows_of, track_frame
 from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
+from backend.pipeline.tracking import relocalize
 
 _SETTINGS = StereoSettings(variant=Variant.PL_W, skip_unused_stages=True, image_scale=None, hessian=False, seed=0)  # as `coplanar run`
 _FRAME = 72  # low-texture, seed 0: a faint wall, 35 keypoints (tracking needs 20 point inliers)
@@ -100,3 +102,26 @@ def test_a_loosely_constrained_pose_is_refused() -> None:
     """With the gate on the pose's uncertainty shut (1 mm), the same frame is lost: a pose
     the marks of one wall leave loose is not taken."""
     assert not _track(with_lines=True, offset_m=0.01, max_translation_std_m=0.001).ok
+
+
+def test_relocalizing_against_a_subset_with_the_whole_maps_search_is_the_same_as_searching_it() -> None:
+    """Tracking searches the local map's descriptors once and relocalizes against the last
+    keyframe's points with that search's rows (`rows_of`): the same pose and matches as a
+    search of the subset alone."""
+    rng = np.random.default_rng(4)
+    camera = PinholeCamera(fx=458.0, fy=457.0, cx=367.0, cy=248.0, width=752, height=480)
+    p_world = np.column_stack([rng.uniform(-2.0, 2.0, 300), rng.uniform(-1.5, 1.5, 300), rng.uniform(3.0, 8.0, 300)])
+    desc = rng.integers(0, 256, (300, 32), dtype=np.uint8)
+    uv = camera.project(p_world)
+    seen = np.flatnonzero(camera.in_image(uv))
+    kp_uv = uv[seen] + rng.normal(0.0, 0.5, (len(seen), 2))
+    kp_desc = desc[seen] ^ (rng.random((len(seen), 32)) < 0.02).astype(np.uint8)
+    subset = np.sort(rng.choice(300, 120, replace=False))
+    whole = nearest_hamming(desc, kp_desc, k=2)
+    alone = relocalize(camera, p_world[subset], desc[subset], kp_uv, kp_desc, max_hamming=50, ratio=0.9, min_inliers=20, seed=1)
+    shared = relocalize(camera, p_world[subset], desc[subset], kp_uv, kp_desc, max_hamming=50, ratio=0.9, min_inliers=20, seed=1, candidates=rows_of(whole, subset, n_rows=300))
+    assert alone is not None and shared is not None
+    for a, b in zip(alone, shared, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert (alone[2] >= 0).sum() > 60
+    np.testing.assert_allclose(alone[1], 0.0, atol=0.02)  # the camera at the world origin
