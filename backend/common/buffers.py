@@ -23,6 +23,16 @@ class RowBuffer:
     def __len__(self) -> int:
         return self._n
 
+    def __deepcopy__(self, memo: dict[int, Any]) -> RowBuffer:
+        """A copy of the rows in use only (the spare capacity is not copied: a map's
+        checkpoint would otherwise hold up to twice its rows; the copy grows on its next
+        append)."""
+        new = RowBuffer.__new__(RowBuffer)
+        new._data = self._data[: max(self._n, 1)].copy()
+        new._n = self._n
+        memo[id(self)] = new
+        return new
+
     def append(self, row: np.ndarray | float) -> int:
         """Append a row; returns its index."""
         if self._n == len(self._data):

@@ -107,10 +107,12 @@ def line_store() -> LandmarkStore:
     )
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class KeyframeObservations:
     """What one keyframe observed: landmark ids, left pixels and right columns (NaN: no
-    stereo match) of points; left segments (start, end) and right segments (NaN: none)."""
+    stereo match) of points; left segments (start, end) and right segments (NaN: none).
+    A value: its arrays are made read-only, and a change (culling) stores a new one, so
+    that copies of the map share the observations instead of copying them."""
 
     point_id: np.ndarray
     point_uv: np.ndarray
@@ -119,12 +121,17 @@ class KeyframeObservations:
     line_uv: np.ndarray
     line_ruv: np.ndarray
 
+    def __post_init__(self) -> None:
+        for field in dataclasses.fields(self):
+            getattr(self, field.name).setflags(write=False)
+
 
 class Map:
     """Keyframes, tracked frames, landmarks, planes and observations (module docstring)."""
 
-    # What copy() copies; everything else an instance holds is shared (the camera). A new
-    # attribute must be added to one of the two (tests/backend/mapping/test_map.py).
+    # What copy() copies; everything else an instance holds is shared (the camera) or, for
+    # VALUE_DICTS, a new dict of the same immutable values. A new attribute must be added to
+    # one of the three (tests/backend/mapping/test_map.py).
     COPIED = (
         "R_world_keyframe",
         "t_world_keyframe",
@@ -136,13 +143,14 @@ class Map:
         "frame_reference",
         "R_reference_frame",
         "t_reference_frame",
-        "observations",
         "points",
         "lines",
         "planes",
         "segment_start",
     )
     SHARED = ("camera",)
+    # Dicts of immutable values (KeyframeObservations): copy() makes a new dict of the same values.
+    VALUE_DICTS = ("observations",)
 
     def __init__(self, camera: PinholeCamera) -> None:
         self.camera = camera
@@ -175,6 +183,8 @@ class Map:
             setattr(new, name, getattr(self, name))
         for name in self.COPIED:
             setattr(new, name, copy.deepcopy(getattr(self, name)))
+        for name in self.VALUE_DICTS:
+            setattr(new, name, dict(getattr(self, name)))
         return new
 
     # ---------------------------------------------------------------- keyframes and frames

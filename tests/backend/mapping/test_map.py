@@ -4,10 +4,11 @@ follow their keyframes."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
-from backend.mapping.map import Map
+from backend.mapping.map import KeyframeObservations, Map
 
 CAMERA = PinholeCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, width=640, height=480, baseline=0.1)
 
@@ -33,8 +34,32 @@ def _map_with_two_keyframes() -> Map:
 def test_every_attribute_is_either_copied_or_shared() -> None:
     """A new attribute of the map must say how a checkpoint treats it."""
     m = _map_with_two_keyframes()
-    assert set(vars(m)) == set(Map.COPIED) | set(Map.SHARED)
-    assert not set(Map.COPIED) & set(Map.SHARED)
+    assert set(vars(m)) == set(Map.COPIED) | set(Map.SHARED) | set(Map.VALUE_DICTS)
+    assert len(Map.COPIED) + len(Map.SHARED) + len(Map.VALUE_DICTS) == len(set(Map.COPIED) | set(Map.SHARED) | set(Map.VALUE_DICTS))
+
+
+def test_a_copy_shares_the_observations_which_cannot_be_changed_in_place() -> None:
+    """A checkpoint shares each keyframe's observations instead of copying them: they are
+    read-only, and replacing one in a copy (as culling does) leaves the original alone."""
+    m = _map_with_two_keyframes()
+    m.observations[0] = KeyframeObservations(np.array([0, 1]), np.zeros((2, 2)), np.zeros(2), np.zeros(0, np.int64), np.zeros((0, 4)), np.zeros((0, 4)))
+    c = m.copy()
+    assert c.observations[0] is m.observations[0] and c.observations is not m.observations
+    with pytest.raises(ValueError, match="read-only"):
+        c.observations[0].point_id[0] = 5
+    c.observations[0] = KeyframeObservations(np.array([1]), np.zeros((1, 2)), np.zeros(1), np.zeros(0, np.int64), np.zeros((0, 4)), np.zeros((0, 4)))
+    assert m.observations[0].point_id.tolist() == [0, 1]
+
+
+def test_a_copy_holds_the_rows_in_use_only_and_grows_again() -> None:
+    m = _map_with_two_keyframes()
+    c = m.copy()
+    assert len(c.t_world_keyframe._data) == 2 < len(m.t_world_keyframe._data)
+    np.testing.assert_array_equal(c.t_world_keyframe[:], m.t_world_keyframe[:])
+    for _ in range(5):
+        c.t_world_keyframe.append(np.ones(3))
+    assert len(c.t_world_keyframe) == 7 and len(m.t_world_keyframe) == 2
+    np.testing.assert_array_equal(c.t_world_keyframe[:2], m.t_world_keyframe[:])
 
 
 def test_a_copy_is_independent() -> None:
