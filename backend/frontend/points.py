@@ -183,13 +183,20 @@ def _best_matches_kernel(rows, cols, dist, n_rows, n_cols, max_distance, ratio):
             has_nan[r] = True
             continue
         finite[r] += 1
-        if d < best[r] or best_col[r] < 0:
-            second[r] = best[r]
-            best[r] = d
-            best_col[r] = cols[p]
-        elif d < second[r]:
-            second[r] = d
+        keep_closest(r, d, cols[p], best, second, best_col)
     return resolve_matches(best, second, best_col, finite, has_nan, n_cols, max_distance, ratio)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def keep_closest(r, d, col, best, second, best_col):  # pragma: no cover - compiled
+    """Row r's candidate `col` at distance d: kept as its closest (the first seen of equal
+    ones) or its second closest distance."""
+    if d < best[r] or best_col[r] < 0:
+        second[r] = best[r]
+        best[r] = d
+        best_col[r] = col
+    elif d < second[r]:
+        second[r] = d
 
 
 @numba.njit(cache=True, nogil=True)

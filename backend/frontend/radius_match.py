@@ -15,7 +15,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from backend.frontend.points import resolve_matches
+from backend.frontend.points import keep_closest, resolve_matches
 
 _M1 = np.uint64(0x5555555555555555)
 _M2 = np.uint64(0x3333333333333333)
@@ -105,12 +105,6 @@ def _match_kernel(query_uv, query_words, kp_uv, kp_words, radius, max_distance, 
                     d = 0
                     for w in range(n_words):
                         d += int(_popcount(query_words[i, w] ^ kp_words[j, w]))
-                    dist = float(d)
                     finite[i] += 1
-                    if dist < best[i] or best_col[i] < 0:
-                        second[i] = best[i]
-                        best[i] = dist
-                        best_col[i] = j
-                    elif dist < second[i]:
-                        second[i] = dist
+                    keep_closest(i, float(d), j, best, second, best_col)
     return resolve_matches(best, second, best_col, finite, has_nan, n_kp, max_distance, ratio)
