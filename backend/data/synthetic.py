@@ -75,6 +75,15 @@ class SequenceSettings:
             raise ValueError("image noise and blur must be >= 0, exposure in [0, 1)")
 
 
+class _SimulatedImu(NamedTuple):
+    """A rendered sequence's IMU: noise-free and noisy samples, the true biases per sample."""
+
+    true: ImuData
+    noisy: ImuData
+    bias_gyro: np.ndarray
+    bias_accel: np.ndarray
+
+
 class _CachedFrame(NamedTuple):
     """What the pipeline reads of a rendered frame: both images (H, W) uint8 and the left
     view's plane ids (H, W) int16."""
@@ -117,10 +126,9 @@ class SyntheticSequence:
         self.trajectory = body_trajectory(scene.motion, rng=rng, seed=settings.seed, region=scene.camera_region, speed=settings.speed)
         period_ns = int(round(1e9 / self.camera_rate_hz))
         self.timestamps_ns = np.arange(0, int(settings.duration_s * 1e9) + 1, period_ns, dtype=np.int64)
-        self.imu_true = imu_samples(self.trajectory, start_ns=0, end_ns=int(self.timestamps_ns[-1]), rate_hz=self.imu_rate_hz)
-        self.imu, self.bias_gyro, self.bias_accel = add_imu_noise(
-            self.imu_true, rng, noise=settings.imu_noise, bias_gyro=np.array(settings.imu_bias_gyro), bias_accel=np.array(settings.imu_bias_accel)
-        )
+        self._imu_rng_state = rng.bit_generator.state  # the IMU is simulated when first read (_SimulatedImu)
+        self._imu_sim: _SimulatedImu | None = None
+        self._imu_lock = threading.Lock()
         t = self.timestamps_ns * 1e-9
         T = np.tile(np.eye(4), (len(t), 1, 1))
         T[:, :3, :3] = self.trajectory.rotation(t)
@@ -136,6 +144,41 @@ class SyntheticSequence:
 
     def __len__(self) -> int:
         return int(self.timestamps_ns.shape[0])
+
+    def _simulated_imu(self) -> _SimulatedImu:
+        """The IMU, simulated on first use from the random state the trajectory left (so the
+        same samples as simulating it at once): a stereo run never reads it, and 400 s of it
+        are 12 MiB."""
+        with self._imu_lock:
+            if self._imu_sim is None:
+                bit_generator = np.random.PCG64()
+                bit_generator.state = self._imu_rng_state  # type: ignore[assignment]  # the state PCG64 itself gave
+                rng = np.random.Generator(bit_generator)
+                s = self.settings
+                truth = imu_samples(self.trajectory, start_ns=0, end_ns=int(self.timestamps_ns[-1]), rate_hz=self.imu_rate_hz)
+                noisy, bias_gyro, bias_accel = add_imu_noise(truth, rng, noise=s.imu_noise, bias_gyro=np.array(s.imu_bias_gyro), bias_accel=np.array(s.imu_bias_accel))
+                self._imu_sim = _SimulatedImu(truth, noisy, bias_gyro, bias_accel)
+            return self._imu_sim
+
+    @property
+    def imu_true(self) -> ImuData:
+        """Noise-free IMU samples at `imu_rate_hz` over the sequence (body frame)."""
+        return self._simulated_imu().true
+
+    @property
+    def imu(self) -> ImuData:
+        """The IMU samples with noise and bias (what a reader of the sequence gets)."""
+        return self._simulated_imu().noisy
+
+    @property
+    def bias_gyro(self) -> np.ndarray:
+        """(N, 3) rad/s the gyro's true bias at each IMU sample."""
+        return self._simulated_imu().bias_gyro
+
+    @property
+    def bias_accel(self) -> np.ndarray:
+        """(N, 3) m/s² the accelerometer's true bias at each IMU sample."""
+        return self._simulated_imu().bias_accel
 
     @property
     def has_imu(self) -> bool:

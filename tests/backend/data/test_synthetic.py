@@ -129,6 +129,33 @@ def test_the_frame_cache_keeps_what_the_pipeline_reads_again() -> None:
     assert all(sum(a.nbytes for a in frame) <= 1.5 * 2**20 for frame in cached)
 
 
+def test_the_imu_is_simulated_when_first_read_and_the_same_whenever_read() -> None:
+    """A stereo run never reads the IMU, so it is not simulated until read; read after
+    frames, from two threads at once, or first, it is the same noisy samples and biases
+    (the noise comes from the random state the trajectory left, not from when it is read)."""
+    import threading
+
+    from backend.data.synthetic import SyntheticSequence
+
+    settings = SequenceSettings(duration_s=2.0, seed=3)
+    first = SyntheticSequence(builtin_scene("room"), settings=settings)
+    expected = (first.imu.gyro.copy(), first.imu.accel.copy(), first.bias_gyro.copy(), first.imu_true.accel.copy())
+
+    later = SyntheticSequence(builtin_scene("room"), settings=settings)
+    later.rectified_pair(4)
+    assert later._imu_sim is None  # frames read, IMU not simulated
+    read: list[object] = []
+    threads = [threading.Thread(target=lambda: read.append(later.imu)) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert read[0] is read[1]  # simulated once
+    for got, want in zip((later.imu.gyro, later.imu.accel, later.bias_gyro, later.imu_true.accel), expected, strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert not np.array_equal(SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=2.0, seed=4)).imu.gyro, expected[0])
+
+
 def test_speed_moves_along_the_same_path_faster() -> None:
     """`speed` F: the pose at time t is the speed-1 pose at time F·t (same path, F times faster),
     and the rate of the cameras (hence the motion between frames) follows."""
