@@ -139,7 +139,10 @@ class Debugger:
         elif command is Command.STEP:
             self._step()
         elif command is Command.VARIANT:
-            self._switch_variant(Variant.parse(arg))
+            if self._scrubbed_back():
+                self._variant_at_shown(Variant.parse(arg))
+            else:
+                self._switch_variant(Variant.parse(arg))
         elif command is Command.ALL_VARIANTS:
             self._all_variants()
         elif command is Command.AB:
@@ -150,7 +153,7 @@ class Debugger:
             keyframe = int(arg)
             snapshot = self.history.get(keyframe, self.engine.variant)
             if snapshot is not None:
-                self._show(snapshot)
+                self._show_kept(snapshot)
         elif command is Command.COMPARE:
             self._update_compare()
         elif command is Command.SEGMENTER:
@@ -201,6 +204,28 @@ class Debugger:
             self._set_status(f"variant {name}: used from the first step")
             return
         self._publish(snapshot)
+
+    def _scrubbed_back(self) -> bool:
+        """Whether the keyframe shown is older than the newest stepped."""
+        return self._shown is not None and bool(self.history) and self._shown.keyframe != self.history.newest_keyframe
+
+    def _variant_at_shown(self, name: Variant) -> None:
+        """A variant chosen at an older keyframe: its kept result there, or why there is none
+        (variants are re-optimized from the engine's state, which is at the newest keyframe);
+        the view stays at the keyframe shown, and the run goes on with the engine's variant."""
+        shown = self._shown
+        assert shown is not None
+        kept = self.history.variants_at(shown.keyframe).get(name)
+        if kept is not None:
+            self._show_kept(kept)
+            return
+        with self.server.atomic():
+            set_value(self.variant, shown.variant)
+        newest = self.history.newest_keyframe
+        self._set_status(
+            f"**{name} was not computed at keyframe {shown.keyframe}**: variants are re-optimized from the engine's state, "
+            f"which is at the newest keyframe ({newest}); move the slider there to add {name}. Still showing {shown.variant}."
+        )
 
     def _all_variants(self) -> None:
         """Every variant at the newest keyframe from the same state; the selected one stays."""
@@ -265,6 +290,8 @@ class Debugger:
         with self.server.atomic():
             self.scene.clear()
             self.slider.disabled = True
+            self.slider.min, self.slider.max = 0, 1
+            set_value(self.slider, 0)
             set_value(self.keyframe_label, "none")
             for tab in self.tabs:
                 tab.clear()
@@ -289,12 +316,26 @@ class Debugger:
                 rate = (len(self._play_times) - 1) / span if span > 0 else float("nan")
                 set_value(self.achieved, f"{rate:.1f} keyframes/s (asked {self.rate.value:g})")
         self._idle()
-        self._set_status(
+        self._set_status(self._status_of(snapshot))
+        self._update_compare()
+
+    def _show_kept(self, snapshot: Snapshot) -> None:
+        """Show a kept snapshot (scrubbing; a variant kept at an older keyframe): the slider
+        stays, the status line and the comparison follow it."""
+        self._show(snapshot)
+        self._set_status(self._status_of(snapshot))
+        self._update_compare()
+
+    def _status_of(self, snapshot: Snapshot) -> str:
+        """The status line for `snapshot` on screen: its keyframe and variant, and the newest
+        keyframe when it is an older one (scrubbed back)."""
+        newest = self.history.newest_keyframe if self.history else snapshot.keyframe
+        return (
             f"**{self.engine.source}**: keyframe {snapshot.keyframe} · {snapshot.variant}"
+            + (f" · scrubbed back (newest {newest})" if snapshot.keyframe != newest else "")
             + (" · playing" if self._playing.is_set() else "")
             + (f"\n\n**{snapshot.message}**" if snapshot.message else "")
         )
-        self._update_compare()
 
     def _show(self, snapshot: Snapshot) -> None:
         """Draw a snapshot: the scene first (its label last, so a client that sees the label
@@ -309,17 +350,20 @@ class Debugger:
         with self.server.atomic():
             if self.variant.value != snapshot.variant:
                 set_value(self.variant, snapshot.variant)
-            shown = Shown(snapshot, variants=self.history.variants_at(snapshot.keyframe), other=other, ab_on=self.engine_b is not None, source=self.engine.source)
+            newest = self.history.newest_keyframe if self.history else snapshot.keyframe
+            variants = self.history.variants_at(snapshot.keyframe)
+            shown = Shown(snapshot, variants=variants, other=other, ab_on=self.engine_b is not None, source=self.engine.source, newest_keyframe=newest)
             for tab in self.tabs:
                 tab.show(shown)
-            self.layer_note.content = f"*{snapshot.variant}: planes are detected and drawn faint for reference; this variant's optimizer does not use them*" if not snapshot.variant.uses_planes else ""
+            self.layer_note.content = _unused_note(snapshot)
         self.server.flush()
         self.request_plots()
         if self.dense is not None:
             self.dense.request(snapshot)
 
     def _update_compare(self) -> None:
-        self.hessian_tab.update_compare(self.engine, has_keyframes=bool(self.history))
+        newest = self.history.newest_keyframe if self.history else None
+        self.hessian_tab.update_compare(self._shown, newest=newest, compute=self.session.compare_hessians, keep=self.session.keep)
 
     # ------------------------------------------------------------------ plots
 
@@ -379,3 +423,12 @@ class Debugger:
         if self.dense is not None:
             self.dense.stop()
         self.server.stop()
+
+
+def _unused_note(snapshot: Snapshot) -> str:
+    """What the 3D view draws for reference only under the shown variant (faint planes under
+    -wo, thin faded lines under P), or "" where the optimizer uses everything drawn."""
+    unused = [what for what, used in (("planes", snapshot.variant.uses_planes), ("lines", snapshot.variant.with_lines)) if not used]
+    if not unused:
+        return ""
+    return f"*{snapshot.variant}: {' and '.join(unused)} are detected and drawn faint for reference; this variant's optimizer does not use them*"

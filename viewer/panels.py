@@ -107,9 +107,10 @@ def imu_markdown(s: Snapshot) -> str:
     return f"**IMU** ({'initialized' if imu.initialized else 'not initialized'}): {imu.status}\n\n{init}| | estimate | truth |\n|---|---|---|\n" + "\n".join(rows) + "\n\n"
 
 
-def variants_markdown(variants: Mapping[Variant, Snapshot], *, shown: Snapshot) -> str:
+def variants_markdown(variants: Mapping[Variant, Snapshot], *, shown: Snapshot, newest_keyframe: int) -> str:
     """The variants computed at one keyframe (the stepped one first; every other one
-    re-optimized the same window from the state that step left), side by side."""
+    re-optimized the same window from the state that step left), side by side; at an older
+    keyframe than the newest, where no more can be added, it says so."""
     if not variants:
         return "no keyframe yet"
     first = next(iter(variants))
@@ -122,9 +123,12 @@ def variants_markdown(variants: Mapping[Variant, Snapshot], *, shown: Snapshot) 
             f"| **{name}**{mark} | {how} | {r.items} / {r.params} | {r.initial_cost:.4g} → {r.final_cost:.4g} | {r.iterations} "
             f"| {r.timing_ms.get('optimization', float('nan')):.0f} | {_num(s.metrics.rmse_cm)} | {_num(s.metrics.ate_cm)} |"
         )
+    if shown.keyframe == newest_keyframe:
+        how_to_add = "choose another in *Variant* to add it; every re-optimization starts from the state the step left"
+    else:
+        how_to_add = f"kept from when it was the newest; variants can be added at the newest keyframe ({newest_keyframe}) only, where the engine's state is"
     return (
-        f"**keyframe {shown.keyframe}**: the variants computed here (choose another in *Variant* to add it; "
-        "every re-optimization starts from the state the step left)\n\n"
+        f"**keyframe {shown.keyframe}**: the variants computed here ({how_to_add})\n\n"
         "| variant | from | items / params | cost | iter. | opt. ms | RMSE cm | ATE cm |\n|---|---|---|---|---|---|---|---|\n" + "\n".join(rows)
     )
 

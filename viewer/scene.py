@@ -31,6 +31,8 @@ COLOR_OUTLIER = (255, 0, 0)
 COLOR_B = (200, 0, 200)  # the A/B run's trajectory and newest camera
 PLANE_OPACITY = 0.45
 PLANE_OPACITY_UNUSED = 0.15  # -wo variants: planes shown for reference only
+COLOR_FADED = (215, 215, 215)  # P variants: lines blended towards this, shown for reference only
+LINE_FADE = 0.35  # the share of a line's own colour kept under P variants
 
 
 @dataclasses.dataclass
@@ -170,6 +172,8 @@ class SceneView:
         if isinstance(handle, viser.LineSegmentsHandle):
             handle.points = segments.astype(np.float32)
             handle.colors = np.ascontiguousarray(cols)
+            if handle.thickness != thickness:
+                handle.thickness = thickness
             return
         handle = self._server.scene.add_line_segments(name, segments.astype(np.float32), np.ascontiguousarray(cols), thickness=thickness, thickness_units="screen", visible=self._visible(name))
         self._keep(name, handle)
@@ -237,7 +241,11 @@ class SceneView:
         finite = np.all(np.isfinite(pts.p_world), axis=1)
         self._points("/map/points", pts.p_world[finite], plane_color(pts.plane[finite]))
         seg_ok = np.all(np.isfinite(lns.segment_world.reshape(-1, 6)), axis=1)
-        self._segments("/map/lines", lns.segment_world[seg_ok], plane_color(lns.plane[seg_ok]), thickness=3.0)
+        # Lines: thin and faded under P variants, whose optimizer does not use them.
+        line_colors = plane_color(lns.plane[seg_ok])
+        if not snapshot.variant.with_lines:
+            line_colors = (LINE_FADE * line_colors.astype(float) + (1.0 - LINE_FADE) * np.array(COLOR_FADED, dtype=float)).astype(np.uint8)
+        self._segments("/map/lines", lns.segment_world[seg_ok], line_colors, thickness=3.0 if snapshot.variant.with_lines else 1.0)
         # RANSAC consensus of the last detection: inliers green, outliers red (drawn larger).
         for state, name, color in ((INLIER, "inliers", COLOR_INLIER), (OUTLIER, "outliers", COLOR_OUTLIER)):
             self._points(f"/map/{name}", pts.p_world[finite & (pts.detection == state)], color)

@@ -19,6 +19,7 @@ import copy
 import dataclasses
 from collections.abc import Callable
 
+from backend.optim.structure import HessianStructure
 from backend.optim.variant import VARIANTS, Variant
 from backend.pipeline.engine import EndOfSequence, Engine, EngineCheckpoint
 from backend.pipeline.snapshot import FrameTrajectory, Snapshot
@@ -182,6 +183,22 @@ class Session:
             self._states[variant] = self.engine.checkpoint()
         self.history.add_variant(snapshot)
         return snapshot
+
+    def compare_hessians(self, family: tuple[Variant, ...]) -> dict[Variant, HessianStructure]:
+        """The newest window as its step left it (not as a variant chosen there re-optimized
+        it) linearized under each of `family`; the engine is left as it was."""
+        self.cancel_ahead()
+        base = self._states.get("base") if self._states_keyframe == self.history.newest_keyframe else None
+        current = self._states.get(self.engine.variant)
+        if base is None or current is None or current is base:
+            return self.engine.compare_hessians(family)
+        variant = self.engine.variant
+        self.engine.restore(base)
+        try:
+            return self.engine.compare_hessians(family)
+        finally:
+            self.engine.restore(current)
+            self.engine.set_variant(variant)
 
     def missing_variants(self) -> list[Variant]:
         """The variants not yet computed at the newest keyframe."""

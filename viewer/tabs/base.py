@@ -17,14 +17,15 @@ from viewer.settings import ViewerSettings
 @dataclasses.dataclass(frozen=True)
 class Shown:
     """What a tab shows: the snapshot on screen, the variants kept at its keyframe, the A/B
-    run's B at the same keyframe (None: none, or the A/B run is off: `ab_on`), and the
-    input's name."""
+    run's B at the same keyframe (None: none, or the A/B run is off: `ab_on`), the
+    input's name, and the newest keyframe stepped (the snapshot's own where none is kept)."""
 
     snapshot: Snapshot
     variants: dict[Variant, Snapshot]
     other: Snapshot | None
     ab_on: bool
     source: str
+    newest_keyframe: int
 
 
 class TabActions(Protocol):

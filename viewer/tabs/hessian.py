@@ -1,12 +1,16 @@
-"""The Hessian tab: the window's H = JᵀJ pattern, and the newest window under the three
-plane modes of the shown variant's features (-wo | -r | -w)."""
+"""The Hessian tab: the window's H = JᵀJ pattern, and the shown keyframe's window, as its
+step left it, under the three plane modes of the shown variant's features (-wo | -r | -w)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
+
+import numpy as np
 import viser
 
 from backend.optim.structure import HessianStructure
-from backend.pipeline.engine import Engine
+from backend.optim.variant import Variant
+from backend.pipeline.snapshot import Snapshot
 from viewer import images
 from viewer.commands import Command
 from viewer.settings import ViewerSettings
@@ -22,12 +26,15 @@ class HessianTab:
         self._compare_initially = settings.compare
         self._encoded = images.EncodedHessians()
         self._shown_structure: HessianStructure | None = None  # rendered again only to show it large
+        # (keyframe, with lines) -> the comparison image: computed once, from the step's state
+        self._compares: dict[tuple[int, bool], np.ndarray] = {}
 
     def build(self, gui: viser.GuiApi) -> None:
         self.legend = gui.add_markdown("no window optimized yet")
         self.image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
-        self.compare_box = gui.add_checkbox("Compare -wo | -r | -w", initial_value=self._compare_initially)
-        self.compare_image = gui.add_image(images.blank(), label="newest window under -wo | -r | -w", format="png")
+        self.compare_box = gui.add_checkbox("Compare plane modes", initial_value=self._compare_initially, hint="This keyframe's window, as its step left it, under -wo | -r | -w")
+        self.compare_note = gui.add_markdown("")
+        self.compare_image = gui.add_image(images.blank(), label="this keyframe's window under -wo | -r | -w", format="png")
         self.enlarge_button = gui.add_button("Open the Hessians large")
         self.compare_box.on_update(lambda _: self.actions.enqueue(Command.COMPARE))
         self.enlarge_button.on_click(lambda event: self.enlarge(event.client))
@@ -40,21 +47,40 @@ class HessianTab:
 
     def clear(self) -> None:
         self._shown_structure = None
+        self._compares = {}
         self.image.image = images.blank()
         self.legend.content = "no window optimized yet"
         self.compare_image.image = images.blank()
+        self.compare_note.content = ""
 
-    def update_compare(self, engine: Engine, *, has_keyframes: bool) -> None:
-        """The comparison of the engine's newest window (on the engine's thread)."""
-        self.compare_image.visible = bool(self.compare_box.value)
-        if not self.compare_box.value or not has_keyframes:
+    def update_compare(self, shown: Snapshot | None, *, newest: int | None, compute: Callable[[tuple[Variant, ...]], Mapping[Variant, HessianStructure]], keep: int) -> None:
+        """The comparison for the keyframe `shown` is at (on the engine's thread): its
+        window as the step left it under the three plane modes of the shown variant's
+        features, kept per keyframe, so that it does not change with the variant chosen
+        there; computed (`compute`) only at the `newest` keyframe, where the engine's state
+        is, and for the last `keep` keyframes."""
+        on = bool(self.compare_box.value)
+        self.compare_image.visible = on
+        if not on or shown is None:
+            self.compare_note.content = ""
             return
-        structures = engine.compare_hessians(engine.variant.family())
-        if structures:
-            self.compare_image.image = images.compare_image(structures)
+        key = (shown.keyframe, shown.variant.with_lines)
+        image = self._compares.get(key)
+        if image is None and shown.keyframe == newest:
+            structures = compute(shown.variant.family())
+            if structures:
+                image = self._compares[key] = images.compare_image(structures)
+                for old in sorted(self._compares)[: max(0, len(self._compares) - 2 * keep)]:
+                    del self._compares[old]
+        if image is None:
+            self.compare_image.image = images.blank()
+            self.compare_note.content = f"*not computed at keyframe {shown.keyframe}: the comparison is made at the newest keyframe, from the state its step left, while this box is on*"
+        else:
+            self.compare_image.image = image
+            self.compare_note.content = f"keyframe {shown.keyframe}'s window as its step left it, under each plane mode of {'PL' if shown.variant.with_lines else 'P'}"
 
     def enlarge(self, client: viser.ClientHandle | None) -> None:
         if client is None:
             return
         window = images.hessian_image(self._shown_structure) if self._shown_structure is not None else images.blank()
-        open_large_view(client, [("H = JᵀJ of the window", window), ("the newest window under -wo | -r | -w", self.compare_image.image)], image_format="png")
+        open_large_view(client, [("H = JᵀJ of the window", window), ("this keyframe's window under -wo | -r | -w", self.compare_image.image)], image_format="png")

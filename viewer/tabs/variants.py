@@ -25,7 +25,7 @@ class VariantsTab:
         self.all_button.on_click(lambda _: self.actions.enqueue(Command.ALL_VARIANTS))
 
     def show(self, shown: Shown) -> None:
-        self.text.content = panels.variants_markdown(shown.variants, shown=shown.snapshot)
+        self.text.content = panels.variants_markdown(shown.variants, shown=shown.snapshot, newest_keyframe=shown.newest_keyframe)
         self.ab_text.content = panels.ab_markdown(shown.snapshot, shown.other) if shown.ab_on else ""
 
     def clear(self) -> None:

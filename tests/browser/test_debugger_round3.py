@@ -1,0 +1,138 @@
+"""The debugger's third round, as a user meets it in the browser: everything on screen is
+true for the keyframe shown. Scrubbed back, the status line and the variant choice stay at
+that keyframe; the plane-mode comparison is the shown keyframe's and does not change with
+the variant chosen; P variants say that the lines drawn are not used; Reset returns the
+keyframe slider to its start. Each test fails on the code before this round."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+from playwright.sync_api import expect
+
+from tests.browser.conftest import field, open_page, start_served, wait_shown
+
+
+def _choose(page, label: str, option: str) -> None:
+    field(page, label).click()
+    page.get_by_role("option", name=option, exact=True).click()
+
+
+def _status(page):
+    """The status line's first paragraph (the input's name, then what is shown), or its
+    note on a variant that cannot be shown."""
+    return page.get_by_text(re.compile(r": keyframe \d+ · |was not computed at keyframe"))
+
+
+def _scrub(page, keyframe: int) -> None:
+    slider = field(page, "Keyframe")
+    slider.fill(str(keyframe))
+    slider.press("Enter")
+
+
+def _stepped(browser, debugger, steps: int, **page_options: int):
+    page = open_page(browser, debugger, **page_options)
+    for k in range(steps):
+        page.get_by_role("button", name="Step").click()
+        wait_shown(page, f"{k} (PL-w)")
+    debugger.wait_idle(timeout=120)
+    return page
+
+
+def test_scrubbed_back_the_status_line_says_the_keyframe_shown(browser, debugger) -> None:
+    page = _stepped(browser, debugger, 6)
+    _status(page).filter(has_text=re.compile(r"keyframe 5 · PL-w$")).wait_for()
+    _scrub(page, 2)
+    wait_shown(page, "2 (PL-w)")
+    _status(page).filter(has_text=re.compile(r"keyframe 2 · PL-w · scrubbed back \(newest 5\)")).wait_for()
+    _scrub(page, 3)
+    wait_shown(page, "3 (PL-w)")
+    _status(page).filter(has_text=re.compile(r"keyframe 3 · PL-w · scrubbed back \(newest 5\)")).wait_for()
+    page.close()
+
+
+def test_a_variant_chosen_scrubbed_back_stays_at_the_keyframe_shown(browser, debugger) -> None:
+    page = _stepped(browser, debugger, 6)
+    _choose(page, "Variant", "P-r")  # kept at keyframe 5
+    wait_shown(page, "5 (P-r)")
+    _choose(page, "Variant", "PL-w")
+    wait_shown(page, "5 (PL-w)")
+    _scrub(page, 2)
+    wait_shown(page, "2 (PL-w)")
+    _choose(page, "Variant", "PL-r")  # not computed at keyframe 2
+    _status(page).filter(has_text="PL-r was not computed at keyframe 2").wait_for()
+    debugger.wait_idle(timeout=120)
+    wait_shown(page, "2 (PL-w)")
+    expect(field(page, "Variant")).to_have_value("PL-w")
+    assert debugger.history.newest_keyframe == 5 and debugger.shown.keyframe == 2
+    page.get_by_role("tab", name="Variants").click()
+    page.get_by_text(re.compile(r"variants can be added at the newest keyframe \(5\) only")).filter(visible=True).wait_for()
+    _scrub(page, 5)
+    wait_shown(page, "5 (PL-w)")
+    _choose(page, "Variant", "P-r")  # kept there: shown again, not re-optimized
+    wait_shown(page, "5 (P-r)")
+    page.get_by_text(re.compile("choose another in .?Variant.? to add it")).filter(visible=True).wait_for()
+    page.close()
+
+
+def test_reset_returns_the_keyframe_slider_to_its_start(browser, debugger) -> None:
+    page = _stepped(browser, debugger, 5)
+    page.get_by_role("button", name="Reset", exact=True).click()
+    wait_shown(page, "none")
+    expect(field(page, "Keyframe")).to_have_value("0")
+    assert debugger.slider.max == 1 and debugger.slider.disabled
+    page.get_by_role("button", name="Step").click()
+    wait_shown(page, "0 (PL-w)")
+    expect(field(page, "Keyframe")).to_have_value("0")
+    page.close()
+
+
+def test_the_plane_mode_comparison_is_the_shown_keyframes_step(browser) -> None:
+    """On room, re-optimizing with PL-r drops some of the window's lines, so a comparison
+    taken from the engine's state after it counted fewer items (PL-w 48 / 137 with PL-w
+    chosen, 44 / 127 with PL-r); scrubbed back, it showed the newest window."""
+    debugger = start_served("--scene", "room", "--duration", "6")  # as `coplanar serve` builds it
+    try:
+        page = open_page(browser, debugger, width=1600, height=1000)
+        page.get_by_role("tab", name="Hessian").click()
+        page.get_by_label(re.compile("^Compare")).check()
+        for k in range(6):
+            page.get_by_role("button", name="Step").click()
+            wait_shown(page, f"{k} (PL-w)")
+        debugger.wait_idle(timeout=120)
+        compare = debugger.hessian_tab.compare_image
+        stepped = np.array(compare.image)
+        _choose(page, "Variant", "PL-r")
+        wait_shown(page, "5 (PL-r)")
+        debugger.wait_idle(timeout=120)
+        np.testing.assert_array_equal(np.array(compare.image), stepped)
+        _scrub(page, 2)
+        wait_shown(page, "2 (PL-w)")  # PL-r was not computed there
+        debugger.wait_idle(timeout=120)
+        assert not np.array_equal(np.array(compare.image), stepped)
+        page.get_by_text("keyframe 2's window as its step left it").wait_for()
+        page.close()
+    finally:
+        debugger.stop()
+
+
+def test_p_variants_draw_the_lines_faint_and_say_so(browser) -> None:
+    debugger = start_served("--scene", "room", "--duration", "6")
+    try:
+        page = _stepped(browser, debugger, 3, width=1600, height=1000)
+        lines = debugger.scene._handles["/map/lines"]
+        assert lines.thickness == 3.0
+        _choose(page, "Variant", "P-wo")
+        wait_shown(page, "2 (P-wo)")
+        page.get_by_text(re.compile("P-wo: planes and lines are detected and drawn faint")).wait_for()
+        debugger.wait_idle(timeout=120)
+        assert lines.thickness == 1.0
+        _choose(page, "Variant", "PL-w")
+        wait_shown(page, "2 (PL-w)")
+        debugger.wait_idle(timeout=120)
+        assert lines.thickness == 3.0
+        expect(page.get_by_text(re.compile("drawn faint for reference"))).to_have_count(0)
+        page.close()
+    finally:
+        debugger.stop()
