@@ -40,7 +40,7 @@ LAYERS = (
     ("lines", "Lines"),
     ("planes", "Planes"),
     ("infinite_planes", "Infinite planes"),
-    ("inliers", "RANSAC in/outliers"),
+    ("inliers", "RANSAC in/out"),
     ("ground_truth", "Ground truth"),
     ("ab", "A/B run (B)"),
 )
@@ -137,7 +137,7 @@ class ControlPanel:
                 self.dense = DenseLayer(server, source, gui.add_markdown(""))
         with gui.add_folder("Export"):
             self.export_button = gui.add_button("Download map (PLY)")
-            self.export_files = gui.add_button("Download map files (zip: points, lines, planes, cameras)")
+            self.export_files = gui.add_button("Download map files (zip)", hint="points, lines, planes and cameras, a PLY file each, in one zip")
             self.export_trajectory = gui.add_button("Download trajectory (TUM)")
             self.export_keyframes = gui.add_button("Download keyframe poses (TUM)")
         gui.add_markdown(SHORTCUTS)

@@ -89,13 +89,20 @@ def pooled_note(structure: HessianStructure, *, max_px: int = IMAGE_PX) -> str:
 def legend_markdown(structure: HessianStructure) -> str:
     """A table of the groups: items and params (tangent dimensions), and how the image
     pools a large window."""
-    rows = "\n".join(f"| {g.kind} | {g.items} | {g.size} |" for g in structure.groups)
+    rows = "\n".join(f"| {GROUP_SWATCHES[g.kind]} | {g.kind} | {g.items} | {g.size} |" for g in structure.groups)
     note = pooled_note(structure)
     return (
         f"**{structure.variant}**: H = JᵀJ of the window, {plural(structure.items, 'item')}, "
         f"{plural(structure.params, 'param')}, {structure.nnz:,} nonzeros\n\n"
-        f"| group | items | params |\n|---|---|---|\n{rows}" + (f"\n\n{note}" if note else "")
+        f"| colour | group | items | params |\n|---|---|---|---|\n{rows}\n\n"
+        "Black: zero. A block between two groups takes the later group's colour (cameras, points, lines, planes); "
+        "points and lines share orange, as in the paper's figures." + (f"\n\n{note}" if note else "")
     )
+
+
+#: The colour of each group in the Hessian images (backend/optim/hessian_image.py's
+#: GROUP_COLORS), as a swatch a markdown table can hold.
+GROUP_SWATCHES: dict[str, str] = {"cameras": "🟩 green", "points": "🟧 orange", "lines": "🟧 orange", "planes": "🟦 blue"}
 
 
 KEYFRAME_LEGEND = (

@@ -136,3 +136,38 @@ def test_p_variants_draw_the_lines_faint_and_say_so(browser) -> None:
         page.close()
     finally:
         debugger.stop()
+
+
+LABEL_FIT = """() => [...document.querySelectorAll('.mantine-Button-label, label')]
+    .filter(e => e.offsetParent !== null && e.textContent.trim())
+    .map(e => {
+        const range = document.createRange();
+        range.selectNodeContents(e);  // the text's line boxes: one distinct top per line
+        const lines = new Set([...range.getClientRects()].filter(r => r.width > 0).map(r => Math.round(r.top))).size;
+        return {text: e.textContent.trim(), cut: e.scrollWidth > e.clientWidth + 1, lines: lines};
+    })
+    .filter(x => x.cut || x.lines > 1)"""
+
+
+def test_every_label_fits_on_one_line(browser, debugger) -> None:
+    """No button or control label is cut short or wrapped, in the control panel and in
+    every tab (1600×1000, the size the issue's screenshots were taken at)."""
+    page = _stepped(browser, debugger, 2, width=1600, height=1000)
+    bad = page.evaluate(LABEL_FIT)
+    for tab in ("Hessian", "Variants", "Plots", "Report"):
+        page.get_by_role("tab", name=tab).click()
+        page.wait_for_timeout(300)
+        bad += page.evaluate(LABEL_FIT)
+    assert not bad, bad
+    page.close()
+
+
+def test_the_hessian_tab_has_a_colour_key(browser, debugger) -> None:
+    page = _stepped(browser, debugger, 2)
+    page.get_by_role("tab", name="Hessian").click()
+    table = page.locator("table").filter(has_text="colour").filter(visible=True).first
+    for row in ("🟩 green cameras", "🟧 orange points", "🟧 orange lines", "🟦 blue planes"):
+        colour, hue, group = row.split()
+        expect(table.locator("tr").filter(has_text=group)).to_contain_text(f"{colour} {hue}")
+    page.get_by_text(re.compile("points and lines share orange")).filter(visible=True).wait_for()
+    page.close()

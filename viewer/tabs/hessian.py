@@ -32,7 +32,7 @@ class HessianTab:
     def build(self, gui: viser.GuiApi) -> None:
         self.legend = gui.add_markdown("no window optimized yet")
         self.image = gui.add_image(images.blank(), label="H = J^T J of the window", format="png")
-        self.compare_box = gui.add_checkbox("Compare plane modes", initial_value=self._compare_initially, hint="This keyframe's window, as its step left it, under -wo | -r | -w")
+        self.compare_box = gui.add_checkbox("Compare modes", initial_value=self._compare_initially, hint="Compare: this keyframe's window, as its step left it, under -wo | -r | -w")
         self.compare_note = gui.add_markdown("")
         self.compare_image = gui.add_image(images.blank(), label="this keyframe's window under -wo | -r | -w", format="png")
         self.enlarge_button = gui.add_button("Open the Hessians large")
