@@ -362,8 +362,8 @@ class Debugger:
             self.dense.request(snapshot)
 
     def _update_compare(self) -> None:
-        newest = self.history.newest_keyframe if self.history else None
-        self.hessian_tab.update_compare(self._shown, newest=newest, compute=self.session.compare_hessians, keep=self.session.keep)
+        newest, first = (self.history.newest_keyframe, self.history.first_keyframe) if self.history else (None, 0)
+        self.hessian_tab.update_compare(self._shown, newest=newest, first_kept=first, compute=self.session.compare_hessians)
 
     # ------------------------------------------------------------------ plots
 

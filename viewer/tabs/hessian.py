@@ -16,6 +16,8 @@ from viewer.commands import Command
 from viewer.settings import ViewerSettings
 from viewer.tabs.base import Shown, TabActions, open_large_view
 
+COMPARES_KEPT = 64
+
 
 class HessianTab:
     title = "Hessian"
@@ -26,7 +28,8 @@ class HessianTab:
         self._compare_initially = settings.compare
         self._encoded = images.EncodedHessians()
         self._shown_structure: HessianStructure | None = None  # rendered again only to show it large
-        # (keyframe, with lines) -> the comparison image: computed once, from the step's state
+        # (keyframe, with lines) -> the comparison image: computed once, from the step's state;
+        # the newest COMPARES_KEPT of the keyframes the history keeps (an image is ~0.5 MB)
         self._compares: dict[tuple[int, bool], np.ndarray] = {}
 
     def build(self, gui: viser.GuiApi) -> None:
@@ -53,12 +56,13 @@ class HessianTab:
         self.compare_image.image = images.blank()
         self.compare_note.content = ""
 
-    def update_compare(self, shown: Snapshot | None, *, newest: int | None, compute: Callable[[tuple[Variant, ...]], Mapping[Variant, HessianStructure]], keep: int) -> None:
+    def update_compare(self, shown: Snapshot | None, *, newest: int | None, first_kept: int, compute: Callable[[tuple[Variant, ...]], Mapping[Variant, HessianStructure]]) -> None:
         """The comparison for the keyframe `shown` is at (on the engine's thread): its
         window as the step left it under the three plane modes of the shown variant's
         features, kept per keyframe, so that it does not change with the variant chosen
         there; computed (`compute`) only at the `newest` keyframe, where the engine's state
-        is, and for the last `keep` keyframes."""
+        is. Kept for the newest COMPARES_KEPT keyframes from `first_kept` (the history's
+        oldest) on."""
         on = bool(self.compare_box.value)
         self.compare_image.visible = on
         if not on or shown is None:
@@ -70,11 +74,14 @@ class HessianTab:
             structures = compute(shown.variant.family())
             if structures:
                 image = self._compares[key] = images.compare_image(structures)
-                for old in sorted(self._compares)[: max(0, len(self._compares) - 2 * keep)]:
-                    del self._compares[old]
+        kept = sorted(k for k in self._compares if k[0] >= first_kept)[-COMPARES_KEPT:]
+        self._compares = {k: self._compares[k] for k in kept}
         if image is None:
             self.compare_image.image = images.blank()
-            self.compare_note.content = f"*not computed at keyframe {shown.keyframe}: the comparison is made at the newest keyframe, from the state its step left, while this box is on*"
+            self.compare_note.content = (
+                f"*not kept for keyframe {shown.keyframe}: the comparison is made at the newest keyframe, from the state its step left, "
+                f"while this box is on, and kept for the last {COMPARES_KEPT} keyframes*"
+            )
         else:
             self.compare_image.image = image
             self.compare_note.content = f"keyframe {shown.keyframe}'s window as its step left it, under each plane mode of {'PL' if shown.variant.with_lines else 'P'}"
