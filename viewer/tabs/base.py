@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
@@ -56,17 +57,46 @@ class Tab(Protocol):
         """Back to the state before the first keyframe (Reset)."""
 
 
-def open_large_view(client: viser.ClientHandle, pictures: list[tuple[str, np.ndarray]], *, image_format: str) -> None:
-    """A floating window, for the clicking tab only, with `pictures` (label, image) at their
-    full size; its Close button removes it."""
+#: Gap between the large view and the panels docked beside it, in CSS pixels.
+LARGE_VIEW_GAP_PX = 12
+#: The large view's size where the browser has not said how large its 3D view is (CSS px).
+LARGE_VIEW_FALLBACK_PX = (600, 700)
+
+
+def large_view_box(client: viser.ClientHandle) -> tuple[int, int]:
+    """Width and height (CSS pixels) of a floating window that fills the client's 3D view,
+    the area between the docked side panel and the control panel, less a gap all round:
+    it covers neither panel, nor the status line at the top of the controls."""
+    width, height = int(client.camera.image_width), int(client.camera.image_height)
+    if width <= 0 or height <= 0:
+        return LARGE_VIEW_FALLBACK_PX
+    return max(width - 2 * LARGE_VIEW_GAP_PX, 200), max(height - 2 * LARGE_VIEW_GAP_PX, 200)
+
+
+def open_large_view(
+    client: viser.ClientHandle,
+    pictures: list[tuple[str, np.ndarray]],
+    *,
+    image_format: str,
+    controls: Callable[[viser.GuiApi], None] | None = None,
+) -> list[viser.GuiImageHandle]:
+    """A floating window, for the clicking tab only, over the 3D view (between the side
+    panel and the control panel, see :func:`large_view_box`), with `pictures` (label,
+    image) as wide as the window allows (each can be enlarged further with the image's
+    own expand icon), after the `controls` the caller adds; its Close button removes it.
+    Returns the image handles, in the order of `pictures`."""
     panel = client.gui.add_panel()
+    shown: list[viser.GuiImageHandle] = []
     with panel.add_tab("Large view", viser.Icon.ZOOM_IN):
+        if controls is not None:
+            controls(client.gui)
         for label, picture in pictures:
             if image_format == "png":
-                client.gui.add_image(picture, label=label, format="png")
+                shown.append(client.gui.add_image(picture, label=label, format="png"))
             else:
-                client.gui.add_image(picture, label=label, format="jpeg", jpeg_quality=95)
+                shown.append(client.gui.add_image(picture, label=label, format="jpeg", jpeg_quality=95))
         close = client.gui.add_button("Close")
     close.on_click(lambda _: panel.remove())
-    width = max(int(np.asarray(pictures[0][1]).shape[1]), 600)
-    panel.float(x=20, y=20, width=width + 40)
+    width, height = large_view_box(client)
+    panel.float(x=LARGE_VIEW_GAP_PX, y=LARGE_VIEW_GAP_PX, width=width, height=height)
+    return shown

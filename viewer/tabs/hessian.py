@@ -56,13 +56,15 @@ class HessianTab:
         self.compare_image.image = images.blank()
         self.compare_note.content = ""
 
-    def update_compare(self, shown: Snapshot | None, *, newest: int | None, first_kept: int, compute: Callable[[tuple[Variant, ...]], Mapping[Variant, HessianStructure]]) -> None:
+    def update_compare(
+        self, shown: Snapshot | None, *, newest: int | None, first_kept: int, compute: Callable[[tuple[Variant, ...]], Mapping[Variant, HessianStructure]], replay: bool = False
+    ) -> None:
         """The comparison for the keyframe `shown` is at (on the engine's thread): its
         window as the step left it under the three plane modes of the shown variant's
         features, kept per keyframe, so that it does not change with the variant chosen
         there; computed (`compute`) only at the `newest` keyframe, where the engine's state
         is. Kept for the newest COMPARES_KEPT keyframes from `first_kept` (the history's
-        oldest) on."""
+        oldest) on. `replay`: the comparisons come from a recording, which may lack some."""
         on = bool(self.compare_box.value)
         self.compare_image.visible = on
         if not on or shown is None:
@@ -76,7 +78,10 @@ class HessianTab:
                 image = self._compares[key] = images.compare_image(structures)
         kept = sorted(k for k in self._compares if k[0] >= first_kept)[-COMPARES_KEPT:]
         self._compares = {k: self._compares[k] for k in kept}
-        if image is None:
+        if image is None and replay:
+            self.compare_image.image = images.blank()
+            self.compare_note.content = f"*not in the recording for keyframe {shown.keyframe} ({'PL' if shown.variant.with_lines else 'P'}): it was kept before Record was ticked, or not made*"
+        elif image is None:
             self.compare_image.image = images.blank()
             self.compare_note.content = (
                 f"*not kept for keyframe {shown.keyframe}: the comparison is made at the newest keyframe, from the state its step left, "
@@ -87,7 +92,26 @@ class HessianTab:
             self.compare_note.content = f"keyframe {shown.keyframe}'s window as its step left it, under each plane mode of {'PL' if shown.variant.with_lines else 'P'}"
 
     def enlarge(self, client: viser.ClientHandle | None) -> None:
+        """Open the shown window's Hessian large for `client` (viewer/tabs/base.py
+        open_large_view): at images.LARGE_PX with its groups' boundaries labelled and the
+        colour key, a *Zoom on* dropdown to show a group or a pair of groups alone, the
+        legend table, and the comparison."""
         if client is None:
             return
-        window = images.hessian_image(self._shown_structure) if self._shown_structure is not None else images.blank()
-        open_large_view(client, [("H = JᵀJ of the window", window), ("this keyframe's window under -wo | -r | -w", self.compare_image.image)], image_format="png")
+        structure = self._shown_structure
+        if structure is None:
+            open_large_view(client, [("no window optimized yet", images.blank())], image_format="png")
+            return
+        choices = images.zoom_choices(structure)
+        zoom: list[viser.GuiDropdownHandle] = []
+
+        def controls(gui: viser.GuiApi) -> None:
+            gui.add_markdown(images.legend_markdown(structure))
+            zoom.append(gui.add_dropdown("Zoom on", tuple(choices), initial_value="whole window", hint="Show a group's block alone, or two groups with their coupling blocks"))
+
+        window = images.large_hessian_image(structure)
+        shown = open_large_view(client, [(LARGE_LABEL, window), ("this keyframe's window under -wo | -r | -w", self.compare_image.image)], image_format="png", controls=controls)
+        zoom[0].on_update(lambda _: setattr(shown[0], "image", images.large_hessian_image(structure, kinds=choices[str(zoom[0].value)])))
+
+
+LARGE_LABEL = "H = JᵀJ of the window: group boundaries labelled with their parameter indices"
