@@ -72,6 +72,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="what the written trajectories are poses of: truth (default): the frame of the dataset's own ground truth (EuRoC, rendered scenes: the IMU body), "
         "so evo against the dataset's ground-truth file reproduces metrics.json; camera: the rectified left camera, as the engine estimates it",
     )
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="FILE",
+        type=path,
+        help="also write the run's snapshots (each keyframe's map, image, Hessian and plane-mode comparison) to FILE, "
+        "which `coplanar serve --replay FILE` opens without the engine or the dataset; the engine then runs every stage, as the debugger's does",
+    )
     p.set_defaults(run=run, history=1)
 
 
@@ -83,14 +91,15 @@ def run(args: argparse.Namespace) -> int:
     from backend.common.atomic import InterruptedAfterCommit
     from backend.export.output_frame import TrajectoryFrame
     from backend.frontend.segmenters import SegmenterError
-    from backend.headless.run import OutputError, RunError, run_headless
+    from backend.headless.run import OutputError, RecordPathError, RunError, run_headless
 
     if getattr(args, "dense", False):
         from backend.common.optional import require_open3d
 
         require_open3d()  # before the run: a missing library is one line, not a lost run
 
-    config = engine_config(args, headless=True)
+    record = getattr(args, "record", None)
+    config = engine_config(args, headless=record is None)  # a recording's snapshots carry the image and the Hessian
     if args.keyframes is not None and args.keyframes < 1:
         raise UsageError(f"--keyframes {args.keyframes}: must be at least 1")
     out: pathlib.Path = args.out
@@ -100,9 +109,11 @@ def run(args: argparse.Namespace) -> int:
         created = False
     try:
         frame = TrajectoryFrame(getattr(args, "trajectory_frame", TrajectoryFrame.TRUTH))
-        result = run_headless(config, out, keyframes=args.keyframes, dense=getattr(args, "dense", False), trajectory_frame=frame)
+        result = run_headless(config, out, keyframes=args.keyframes, dense=getattr(args, "dense", False), trajectory_frame=frame, record=record)
     except SegmenterError as e:
         raise segmenter_error(e, config) from None
+    except RecordPathError as e:
+        raise UsageError(f"--record {e}") from None
     except OutputError as e:
         raise UsageError(f"--out {e}") from None
     except RunError as e:

@@ -11,6 +11,7 @@ DEFAULT_DURATION_S = 60.0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    from app.options import path
     from app.sources import add_source_arguments
     from backend.optim.variant import VARIANT_NAMES
 
@@ -31,15 +32,47 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--history-mb", type=float, default=100.0, help="at most this many MiB of kept snapshots (oldest dropped first; default 100)")
     p.add_argument("--play", action="store_true", help="start playing at once")
     p.add_argument("--sweep", default=None, metavar="DIR", help="also show the results of `coplanar sweep --out DIR` (its Sweep tab)")
+    p.add_argument(
+        "--replay",
+        default=None,
+        metavar="FILE",
+        type=path,
+        help="open a recording (`coplanar run --record FILE`, or the debugger's Record folder) instead of running an engine: no dataset needed",
+    )
     p.set_defaults(run=run)
 
 
 def build_engine(args: argparse.Namespace):
-    """The debugger's engine for `--scene` / `--dataset` (app.sources); UsageError for bad
-    values. The stereo pipeline runs every stage and draws the keyframe image and Hessian."""
+    """The debugger's engine for `--scene` / `--dataset` (app.sources), or the replay of
+    `--replay FILE`; UsageError for bad values or a file that is not a recording. The stereo
+    pipeline runs every stage and draws the keyframe image and Hessian."""
     from app.sources import build_engine as build
 
+    if getattr(args, "replay", None) is not None:
+        return replay_engine(args)
     return build(args, headless=False)
+
+
+#: Options that choose or shape an engine, which a replay has none of.
+_ENGINE_OPTIONS = ("scene", "dataset", "calib", "topic", "duration", "frames", "stride", "speed", "mislabel", "window", "segmenter", "segmenter_model")
+
+
+def replay_engine(args: argparse.Namespace):
+    """The ReplayEngine of `--replay FILE`; UsageError (one line) for engine options given
+    with it or a file that is not a readable recording."""
+    from app.errors import UsageError
+    from backend.pipeline.recording import Recording, RecordingError
+    from backend.pipeline.replay_engine import ReplayEngine
+
+    given = [f"--{name.replace('_', '-')}" for name in _ENGINE_OPTIONS if getattr(args, name, None) not in (None, [], ())]
+    if getattr(args, "mode", "stereo") != "stereo":
+        given.append("--mode")
+    if given:
+        raise UsageError(f"--replay: {', '.join(given)} not used (a replay shows the recorded run)")
+    try:
+        return ReplayEngine(Recording.open(args.replay))
+    except RecordingError as e:
+        raise UsageError(f"--replay {e}") from None
 
 
 def check_bindable(host: str, port: int) -> None:

@@ -25,8 +25,9 @@ from backend.export.output_frame import TrajectoryFrame, output_frame
 from backend.frontend.segmenters import SegmenterError, SegmenterKind, make_segmenter
 from backend.optim.variant import Variant
 from backend.pipeline.engine import EndOfSequence, Engine
+from backend.pipeline.replay_engine import NotRecorded
 from backend.pipeline.snapshot import FrameTrajectory, Snapshot
-from viewer import exports
+from viewer import exports, panels
 from viewer.access import AccessSettings
 from viewer.commands import Command
 from viewer.controls import AB_OFF, SEGMENTER_LABELS, ControlPanel, Segmented, set_value
@@ -96,6 +97,9 @@ class Debugger:
         side.set_width(560)
         self.side_panel = side
         c.connect()
+        if getattr(self.engine, "replay", False):  # nothing to run a second engine on
+            self.ab_variant.disabled = True
+            c.ab_note.content = "*A replay shows what was recorded: no second run.*"
 
     def _tab(self, cls: type[T]) -> T:
         return next(t for t in self.tabs if isinstance(t, cls))
@@ -151,13 +155,16 @@ class Debugger:
             self._reset()
         elif command is Command.SHOW:
             keyframe = int(arg)
-            snapshot = self.history.get(keyframe, self.engine.variant)
+            same = self._shown is not None and self._shown.keyframe == keyframe  # drawn again (Displacement): the variant shown stays
+            snapshot = self.history.get(keyframe, self._shown.variant if same and self._shown is not None else self.engine.variant)
             if snapshot is not None:
                 self._show_kept(snapshot)
         elif command is Command.COMPARE:
             self._update_compare()
         elif command is Command.SEGMENTER:
             self._set_segmenter(SegmenterKind(arg))
+        elif command is Command.RECORD:
+            self._set_recording(bool(arg))
 
     def _failed(self, command: Command, exc: Exception) -> None:
         """A command raised (the worker logged it and stopped playing): paused, and why."""
@@ -199,7 +206,16 @@ class Debugger:
     def _switch_variant(self, name: Variant) -> None:
         """Show `name` at the newest keyframe: its kept result, or the window re-optimized
         with it from the state the step left."""
-        snapshot = self.session.switch_variant(name, busy=self._busy)
+        try:
+            snapshot = self.session.switch_variant(name, busy=self._busy)
+        except NotRecorded as e:  # a replay: only what was recorded
+            shown = self._shown
+            if shown is not None:
+                self.engine.set_variant(shown.variant)
+                with self.server.atomic():
+                    set_value(self.variant, shown.variant)
+            self._set_status(f"**{e}**; still showing {shown.variant if shown is not None else 'nothing'}.")
+            return
         if snapshot is None:
             self._set_status(f"variant {name}: used from the first step")
             return
@@ -279,9 +295,32 @@ class Debugger:
                 engine.segmenter = segmenter
         self._set_status(f"plane instances from the {SEGMENTER_LABELS[kind]} segmenter from the next keyframe on")
 
+    def _set_recording(self, on: bool) -> None:
+        """Record from now on (viewer/session.py), or stop; the recording stays for download."""
+        if on and not self.session.recording:
+            self.session.start_recording()
+        elif not on:
+            self.session.stop_recording()
+        if bool(self.controls.record.value) != self.session.recording:
+            set_value(self.controls.record, self.session.recording)
+        self._update_record_note()
+
+    def _update_record_note(self) -> None:
+        recorder = self.session.recorder
+        if recorder is None:
+            text = ""
+        else:
+            state = "recording" if self.session.recording else "recorded (stopped)"
+            text = f"{state}: {recorder.keyframes} keyframes, {recorder.size_bytes / 2**20:.1f} MB"
+        if self.controls.record_note.content != text:
+            self.controls.record_note.content = text
+
     def _reset(self) -> None:
         self._busy("resetting …")
         self.session.reset()
+        if bool(self.controls.record.value):
+            set_value(self.controls.record, False)
+        self._update_record_note()
         if self.dense is not None:
             self.dense.clear()
         self._ab_stopped("A/B run off (reset)")
@@ -318,6 +357,7 @@ class Debugger:
         self._idle()
         self._set_status(self._status_of(snapshot))
         self._update_compare()
+        self._update_record_note()
 
     def _show_kept(self, snapshot: Snapshot) -> None:
         """Show a kept snapshot (scrubbing; a variant kept at an older keyframe): the slider
@@ -335,14 +375,17 @@ class Debugger:
             + (f" · scrubbed back (newest {newest})" if snapshot.keyframe != newest else "")
             + (" · playing" if self._playing.is_set() else "")
             + (f"\n\n**{snapshot.message}**" if snapshot.message else "")
+            + (f"\n\n{note}" if (note := panels.vio_start_note(snapshot)) and note != f"VIO not initialized yet: {snapshot.message}" else "")
         )
 
     def _show(self, snapshot: Snapshot) -> None:
         """Draw a snapshot: the scene first (its label last, so a client that sees the label
         has the whole scene), then the panels, which cost more to encode."""
         other = self.session.other_at(snapshot.keyframe)
+        variants = self.history.variants_at(snapshot.keyframe)
+        compare = self.controls.displacement.target(snapshot, variants=variants, other=other)
         with self.server.atomic():
-            self.scene.draw(snapshot, other=other)
+            self.scene.draw(snapshot, other=other, compare=compare)
             set_value(self.keyframe_label, f"{snapshot.keyframe} ({snapshot.variant})")
         self.server.flush()
         self._shown = snapshot
@@ -351,11 +394,11 @@ class Debugger:
             if self.variant.value != snapshot.variant:
                 set_value(self.variant, snapshot.variant)
             newest = self.history.newest_keyframe if self.history else snapshot.keyframe
-            variants = self.history.variants_at(snapshot.keyframe)
             shown = Shown(snapshot, variants=variants, other=other, ab_on=self.engine_b is not None, source=self.engine.source, newest_keyframe=newest)
             for tab in self.tabs:
                 tab.show(shown)
             self.layer_note.content = _unused_note(snapshot)
+            self.controls.displacement.show(snapshot, variants=variants, other=other, displacement=self.scene.displacement)
         self.server.flush()
         self.request_plots()
         if self.dense is not None:
@@ -363,7 +406,8 @@ class Debugger:
 
     def _update_compare(self) -> None:
         newest, first = (self.history.newest_keyframe, self.history.first_keyframe) if self.history else (None, 0)
-        self.hessian_tab.update_compare(self._shown, newest=newest, first_kept=first, compute=self.session.compare_hessians)
+        replay = bool(getattr(self.engine, "replay", False))
+        self.hessian_tab.update_compare(self._shown, newest=newest, first_kept=first, compute=self.session.compare_hessians, replay=replay)
 
     # ------------------------------------------------------------------ plots
 
@@ -384,7 +428,11 @@ class Debugger:
     # ------------------------------------------------------------------ export
 
     def export(self, client: viser.ClientHandle | None, what: str) -> None:
-        """Send `what` of the shown snapshot to `client` (viewer/exports.py)."""
+        """Send `what` of the shown snapshot to `client` (viewer/exports.py), or "recording":
+        the recording so far (viewer/session.py)."""
+        if what == "recording":
+            exports.send_recording(client, self.session.recorder)
+            return
         snapshot = self._shown
         is_newest = snapshot is not None and snapshot.keyframe == self.history.newest_keyframe
         frame = output_frame(getattr(self.engine, "data_source", None), choice=TrajectoryFrame.TRUTH)

@@ -2,7 +2,7 @@
 
 Commands from the browser coalesce, so that no burst of clicks or key presses queues work
 the user must wait out: a Step (or Compute all, or a wake-up) already waiting makes a new
-one redundant; a newer Show, Variant, A/B, Segmenter or Compare replaces a waiting one of the
+one redundant; a newer Show, Variant, A/B, Segmenter, Compare or Record replaces a waiting one of the
 same kind (moved to the end, so the order of different kinds is kept); a Reset drops what
 it would undo anyway (waiting Steps, Shows, Compute all, Compare, A/B). Reset and Pause
 therefore act within one step's time, however many Steps were clicked before them.
@@ -28,13 +28,14 @@ class Command(enum.StrEnum):
     ALL_VARIANTS = "all_variants"
     COMPARE = "compare"
     SEGMENTER = "segmenter"
+    RECORD = "record"
     WAKE = "wake"
     AHEAD = "ahead"  # the worker's own: compute the next step while idle (viewer/session.py)
     STOP = "stop"
 
 
 REDUNDANT_WHILE_WAITING = frozenset({Command.STEP, Command.ALL_VARIANTS, Command.WAKE})
-LATEST_WINS = frozenset({Command.SHOW, Command.VARIANT, Command.AB, Command.SEGMENTER, Command.COMPARE})
+LATEST_WINS = frozenset({Command.SHOW, Command.VARIANT, Command.AB, Command.SEGMENTER, Command.COMPARE, Command.RECORD})
 UNDONE_BY_RESET = frozenset({Command.STEP, Command.SHOW, Command.ALL_VARIANTS, Command.COMPARE, Command.AB, Command.RESET})
 
 

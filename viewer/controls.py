@@ -20,6 +20,7 @@ from backend.pipeline.engine import Engine
 from backend.pipeline.snapshot import Snapshot
 from viewer.commands import Command
 from viewer.dense import DenseLayer
+from viewer.displacement_layer import DISPLACEMENT_OFF, DisplacementLayer
 from viewer.history import SnapshotHistory
 from viewer.scene import SceneView
 from viewer.settings import ViewerSettings
@@ -119,7 +120,7 @@ class ControlPanel:
             self.ab_variant = gui.add_dropdown("B variant", (AB_OFF, *VARIANT_NAMES), initial_value=AB_OFF)
             self.ab_note = gui.add_markdown(
                 "A second engine runs the same input in lockstep from the state shown when B is chosen; its "
-                "trajectory and newest camera are drawn in magenta, the differences are in the *Variants* tab."
+                "trajectory and newest camera are drawn in aquamarine, labelled B, the differences are in the *Variants* tab."
             )
         with gui.add_folder("View"):
             self.follow = gui.add_checkbox("Follow keyframe", initial_value=False)
@@ -129,17 +130,25 @@ class ControlPanel:
         with gui.add_folder("Layers"):
             self.layer_boxes = {name: gui.add_checkbox(label, initial_value=getattr(scene.layers, name)) for name, label in LAYERS}
             self.layer_note = gui.add_markdown("")
+            # The shown map coloured by how far each landmark lies from itself in another
+            # snapshot of the keyframe (viewer/displacement_layer.py).
+            self.displacement_to = gui.add_dropdown("Displacement", (DISPLACEMENT_OFF,), initial_value=DISPLACEMENT_OFF, hint="colour the map by how far each landmark moved to another variant (or B)")
+            self.displacement = DisplacementLayer(self.displacement_to, gui.add_markdown(""))
             self.dense: DenseLayer | None = None
             self.dense_box: viser.GuiCheckboxHandle | None = None
             source = getattr(engine, "data_source", None)
             if isinstance(source, StereoSource):  # image pipelines: depth to fuse
-                self.dense_box = gui.add_checkbox("Dense mesh (TSDF)", initial_value=False)
+                self.dense_box = gui.add_checkbox("Dense mesh", initial_value=False, hint="the keyframes' depth fused into a TSDF at the estimated poses (a mesh)")
                 self.dense = DenseLayer(server, source, gui.add_markdown(""))
         with gui.add_folder("Export"):
             self.export_button = gui.add_button("Download map (PLY)")
             self.export_files = gui.add_button("Download map files (zip)", hint="points, lines, planes and cameras, a PLY file each, in one zip")
             self.export_trajectory = gui.add_button("Download trajectory (TUM)")
             self.export_keyframes = gui.add_button("Download keyframe poses (TUM)")
+        with gui.add_folder("Record"):
+            self.record = gui.add_checkbox("Record", initial_value=False, hint="from now on (and the keyframes kept), every snapshot, variant and comparison, for coplanar serve --replay")
+            self.record_note = gui.add_markdown("")
+            self.download_recording = gui.add_button("Download recording (zip)", hint="the recording so far, one file: coplanar serve --replay FILE opens it")
         gui.add_markdown(SHORTCUTS)
 
     def connect(self) -> None:
@@ -152,6 +161,7 @@ class ControlPanel:
         if self.segmenter is not None:
             self.segmenter.on_update(self._segmenter_chosen)
         self.ab_variant.on_update(self._ab_chosen)
+        self.displacement_to.on_update(self._displacement_chosen)
         self.play.on_update(lambda _: actions.on_play(bool(self.play.value)))
         self.slider.on_update(self._slider_moved)
         for name, box in self.layer_boxes.items():
@@ -166,6 +176,8 @@ class ControlPanel:
         self.export_files.on_click(lambda event: actions.export(event.client, "files"))
         self.export_trajectory.on_click(lambda event: actions.export(event.client, "trajectory"))
         self.export_keyframes.on_click(lambda event: actions.export(event.client, "keyframes"))
+        self.record.on_update(self._record_toggled)
+        self.download_recording.on_click(lambda event: actions.export(event.client, "recording"))
 
         gui = self.server.gui
         gui.add_command("Play / pause", hotkey="space").on_trigger(lambda _: set_value(self.play, not self.play.value))
@@ -196,6 +208,15 @@ class ControlPanel:
     def _ab_chosen(self, event: viser.GuiEvent) -> None:
         if event.client is not None:
             self.actions.enqueue(Command.AB, self.ab_variant.value)
+
+    def _record_toggled(self, event: viser.GuiEvent) -> None:
+        if event.client is not None:
+            self.actions.enqueue(Command.RECORD, bool(self.record.value))
+
+    def _displacement_chosen(self, event: viser.GuiEvent) -> None:
+        shown = self.actions.shown
+        if event.client is not None and shown is not None:  # the shown snapshot drawn again, coloured by the choice
+            self.actions.enqueue(Command.SHOW, shown.keyframe)
 
     def _slider_moved(self, event: viser.GuiEvent) -> None:
         if event.client is not None:  # a user scrubs: stop playing, or the next step jumps back

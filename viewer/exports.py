@@ -8,6 +8,7 @@ import viser
 
 from backend.export.output_frame import OutputFrame
 from backend.export.ply import snapshot_ply_bytes
+from backend.pipeline.recording import RecordingWriter
 from backend.pipeline.snapshot import FrameTrajectory, Snapshot, Trajectory
 from viewer import panels
 
@@ -54,6 +55,18 @@ def export(
         )
     else:
         client.send_file_download(f"{stem}_trajectory.txt", _tum(frame, frame_trajectory().estimate), save_immediately=True)
+
+
+def send_recording(client: viser.ClientHandle | None, recorder: RecordingWriter | None) -> None:
+    """Send the recording so far to `client` (`coplanar serve --replay FILE` opens it), or
+    say why there is none."""
+    if client is None:
+        return
+    if recorder is None or not recorder.keyframes:
+        client.add_notification("Nothing recorded", "Tick Record (in the Record folder), then Step or Play; the recording starts with the keyframes kept.", auto_close_seconds=6.0, color="yellow")
+        return
+    name = "".join(c if c.isalnum() or c in "-_" else "_" for c in recorder.source.split(" ")[0])[:40] or "run"
+    client.send_file_download(f"coplanar_{name}_{recorder.keyframes}kf.recording.zip", recorder.to_bytes(), save_immediately=True)
 
 
 def _tum(frame: OutputFrame, estimate: Trajectory) -> bytes:

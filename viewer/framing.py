@@ -26,17 +26,36 @@ class Bounds:
     radius: float
 
 
+#: A map point (or line endpoint, plane hull vertex) is left out of the framing when it lies
+#: farther from the points' median than this many times the 90th percentile of the points'
+#: distances to it: a few badly triangulated landmarks (13 m away in a 3 m room) must not
+#: shrink the map to a dot, while a whole wall seen by a quarter of the points is kept.
+OUTLIER_FACTOR = 2.0
+
+
+def _robust(p_world: np.ndarray, centre: np.ndarray, cut_m: float) -> np.ndarray:
+    """The finite rows of `p_world` (N, 3) within `cut_m` metres of `centre`."""
+    p_world = p_world[np.all(np.isfinite(p_world), axis=1)]
+    return p_world[np.linalg.norm(p_world - centre, axis=1) <= cut_m]
+
+
 def snapshot_bounds(snapshot: Snapshot) -> Bounds:
-    """The region to frame: every keyframe position and the map points, leaving out
-    those farther from the points' median than three times their median distance to it
-    (a few badly triangulated points must not shrink the map to a dot)."""
+    """The region to frame (world frame, m): every keyframe position and what the map draws,
+    its points, line segments and plane patches, leaving out those farther from the points'
+    median than `OUTLIER_FACTOR` times the 90th percentile of the points' distances to it.
+    (A cut at three times the median distance left out a quarter of the room's first map,
+    the part of the back wall left of the first camera, so the map ran past the view's left
+    edge for the first ten keyframes.)"""
     t = np.asarray(snapshot.estimate.t_world_camera, float)
     p = np.asarray(snapshot.points.p_world, float)
     p = p[np.all(np.isfinite(p), axis=1)]
     parts = [t[np.all(np.isfinite(t), axis=1)]]
     if len(p):
-        dist = np.linalg.norm(p - np.median(p, axis=0), axis=1)
-        parts.append(p[dist <= max(3.0 * float(np.median(dist)), 0.1)])
+        centre = np.median(p, axis=0)
+        cut_m = max(OUTLIER_FACTOR * float(np.quantile(np.linalg.norm(p - centre, axis=1), 0.9)), 0.1)
+        hulls = [np.asarray(plane.hull_world, float).reshape(-1, 3) for plane in snapshot.planes]
+        drawn = [p, np.asarray(snapshot.lines.segment_world, float).reshape(-1, 3), *hulls]
+        parts += [_robust(x, centre, cut_m) for x in drawn]
     pts = np.concatenate(parts) if any(len(x) for x in parts) else np.zeros((1, 3))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     return Bounds(centre=0.5 * (lo + hi), radius=max(0.5 * float(np.linalg.norm(hi - lo)), 0.5))

@@ -107,6 +107,47 @@ def imu_markdown(s: Snapshot) -> str:
     return f"**IMU** ({'initialized' if imu.initialized else 'not initialized'}): {imu.status}\n\n{init}| | estimate | truth |\n|---|---|---|\n" + "\n".join(rows) + "\n\n"
 
 
+#: A start whose scale is known to worse than this (1σ, relative) is flagged: twice it
+#: exceeds the 10 % a user would notice in the map's size. The engine accepts up to 15 %
+#: (backend/pipeline/vio_settings.py); this is the debugger's warning, not a tuned figure.
+UNCERTAIN_SCALE = 0.05
+#: Accelerometer excitation (VINS-Mono's std of Δv/Δt) below which the start says so.
+LOW_EXCITATION_MPS2 = 0.25
+
+
+def vio_start_note(s: Snapshot) -> str:
+    """One line on VIO's start for the status line (empty for the other engines): while
+    waiting, what it waits for; once initialized, how well the scale is known (σ from the
+    alignment) and, when it is uncertain, why (little acceleration or rotation at the start)
+    and what helps; the truth's scale error where the input has it."""
+    imu = s.imu
+    if imu is None:
+        return ""
+    if not imu.initialized:
+        return f"VIO not initialized yet: {imu.status}"
+    rep = imu.report
+    quality = rep.get("quality") or {}
+    sigma = float(quality.get("scale_rel_std", float("nan")))
+    excitation = float(quality.get("accel_excitation_mps2", float("nan")))
+    rotation = float(quality.get("rotation_span_deg", float("nan")))
+    span = float(rep.get("span_s", float("nan")))
+    head = f"initialized at keyframe {imu.init_keyframe} ({_num(span, 1)} s of motion), the alignment's scale known to ±{_num(100 * sigma, 0)} % (1σ)"
+    truth = rep.get("joint_scale_error_pct", rep.get("scale_error_pct"))
+    against = f"; after the joint solve {_num(float(truth), 1)} % against the truth" if truth is not None and math.isfinite(float(truth)) else ""
+    if not (math.isfinite(sigma) and sigma > UNCERTAIN_SCALE):
+        return f"VIO {head}{against}"
+    why = []
+    if math.isfinite(excitation) and excitation < LOW_EXCITATION_MPS2:
+        why.append(f"little acceleration ({_num(excitation, 2)} m/s²)")
+    if math.isfinite(rotation) and rotation < 15.0:
+        why.append(f"little rotation ({_num(rotation, 0)}°)")
+    because = f", because the start had {' and '.join(why)}" if why else ": the start's motion barely constrains it"
+    return (
+        f"**uncertain VIO start**: {head}{because}{against}. The window's joint solve refines the scale from there; an error left shows in the "
+        "map's size and the trajectory. A start with more motion (faster, or turning while moving: `--speed 2` on rendered scenes) gives a better one; Reset to start again."
+    )
+
+
 def variants_markdown(variants: Mapping[Variant, Snapshot], *, shown: Snapshot, newest_keyframe: int) -> str:
     """The variants computed at one keyframe (the stepped one first; every other one
     re-optimized the same window from the state that step left), side by side; at an older

@@ -15,6 +15,7 @@ import viser
 from backend.common.palette import plane_color
 from backend.geometry.camera import PinholeCamera
 from backend.pipeline.snapshot import INLIER, OUTLIER, Snapshot
+from viewer.displacement import Displacement, displacement, displacement_colors
 from viewer.framing import marker_size_m, snapshot_bounds
 
 FRUSTUM_DEPTH_M = 0.25
@@ -28,7 +29,13 @@ COLOR_ESTIMATE = (30, 90, 220)
 COLOR_GROUND_TRUTH = (20, 20, 20)
 COLOR_INLIER = (0, 200, 0)
 COLOR_OUTLIER = (255, 0, 0)
-COLOR_B = (200, 0, 200)  # the A/B run's trajectory and newest camera
+# The A/B run's trajectory, newest camera and label: aquamarine, far from every plane colour
+# (backend/common/palette.py; the nearest, teal, is 60 CIELAB units away), from the
+# cameras' grey, orange and red and from the RANSAC green (46 units): tests/viewer/test_scene_colours.py.
+COLOR_B = (0, 255, 190)
+B_FRUSTUM_DEPTH_M = 1.6 * FRUSTUM_DEPTH_M  # B's newest camera drawn larger than A's
+B_THICKNESS = 4.0  # px, A's frustums 1.5
+COLOR_DISPLACEMENT_LINK = (90, 90, 90)  # from a landmark to where the other snapshot has it
 PLANE_OPACITY = 0.45
 PLANE_OPACITY_UNUSED = 0.15  # -wo variants: planes shown for reference only
 COLOR_FADED = (215, 215, 215)  # P variants: lines blended towards this, shown for reference only
@@ -62,6 +69,7 @@ NODE_LAYER = {
     "/trajectory/ground_truth": "ground_truth",
     "/cameras": "cameras",
     "/ab": "ab",
+    "/map/displacement": "points",
 }
 
 
@@ -114,6 +122,7 @@ class SceneView:
         self._handles: dict[str, viser.SceneNodeHandle] = {}
         self.point_scale = 1.0  # the user's factor on the extent-based marker size
         self._point_size = 0.02
+        self.displacement: Displacement | None = None  # of the shown map to the one chosen (None: off)
         server.scene.set_up_direction("+z")
         server.initial_camera.position = (-3.2, -5.2, 4.6)
         server.initial_camera.look_at = (0.0, 0.0, 0.0)
@@ -220,9 +229,11 @@ class SceneView:
         )
         self._keep(name, handle)
 
-    def draw(self, snapshot: Snapshot, *, other: Snapshot | None = None) -> None:
+    def draw(self, snapshot: Snapshot, *, other: Snapshot | None = None, compare: Snapshot | None = None) -> None:
         """Replace the drawn map with `snapshot`'s (call inside `server.atomic()`); `other`
-        (the A/B run's snapshot) adds its trajectory and newest camera in magenta."""
+        (the A/B run's snapshot) adds its trajectory, newest camera and label in aquamarine;
+        `compare` (another snapshot of the same keyframe) colours the points and lines by
+        how far each landmark lies from itself there (`self.displacement`)."""
         self._point_size = marker_size_m(snapshot_bounds(snapshot))
         est = snapshot.estimate
         R, t = est.R_world_camera, est.t_world_camera
@@ -239,13 +250,12 @@ class SceneView:
 
         pts, lns = snapshot.points, snapshot.lines
         finite = np.all(np.isfinite(pts.p_world), axis=1)
-        self._points("/map/points", pts.p_world[finite], plane_color(pts.plane[finite]))
         seg_ok = np.all(np.isfinite(lns.segment_world.reshape(-1, 6)), axis=1)
-        # Lines: thin and faded under P variants, whose optimizer does not use them.
-        line_colors = plane_color(lns.plane[seg_ok])
-        if not snapshot.variant.with_lines:
-            line_colors = (LINE_FADE * line_colors.astype(float) + (1.0 - LINE_FADE) * np.array(COLOR_FADED, dtype=float)).astype(np.uint8)
+        self.displacement = displacement(snapshot, compare) if compare is not None else None
+        point_colors, line_colors = self._map_colors(snapshot, finite=finite, seg_ok=seg_ok)
+        self._points("/map/points", pts.p_world[finite], point_colors)
         self._segments("/map/lines", lns.segment_world[seg_ok], line_colors, thickness=3.0 if snapshot.variant.with_lines else 1.0)
+        self._draw_links(snapshot, finite=finite)
         # RANSAC consensus of the last detection: inliers green, outliers red (drawn larger).
         for state, name, color in ((INLIER, "inliers", COLOR_INLIER), (OUTLIER, "outliers", COLOR_OUTLIER)):
             self._points(f"/map/{name}", pts.p_world[finite & (pts.detection == state)], color)
@@ -275,12 +285,54 @@ class SceneView:
             self._keep(name, None)
         self._draw_other(other)
 
+    def _map_colors(self, snapshot: Snapshot, *, finite: np.ndarray, seg_ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Colours (N, 3) of the finite points and lines: by displacement when it is on
+        (viridis up to its scale), else by plane, lines faded under P variants (whose
+        optimizer does not use them)."""
+        d = self.displacement
+        if d is not None:
+            return displacement_colors(d.point_m[finite], scale_m=d.scale_m), displacement_colors(d.line_m[seg_ok], scale_m=d.scale_m)
+        line_colors = plane_color(snapshot.lines.plane[seg_ok])
+        if not snapshot.variant.with_lines:
+            line_colors = (LINE_FADE * line_colors.astype(float) + (1.0 - LINE_FADE) * np.array(COLOR_FADED, dtype=float)).astype(np.uint8)
+        return plane_color(snapshot.points.plane[finite]), line_colors
+
+    def _draw_links(self, snapshot: Snapshot, *, finite: np.ndarray) -> None:
+        """With the displacement on: a thin segment from each matched point to where the
+        other snapshot has it (world frame, m); none otherwise."""
+        d = self.displacement
+        links = np.zeros((0, 2, 3))
+        if d is not None:
+            p_world = np.asarray(snapshot.points.p_world, float)
+            matched = finite & np.isfinite(d.point_m) & (d.point_m > 0.0)
+            links = np.stack([p_world[matched], d.p_world_other[matched]], axis=1)
+        self._segments("/map/displacement", links, COLOR_DISPLACEMENT_LINK, thickness=1.0)
+
     def _draw_other(self, other: Snapshot | None) -> None:
+        """The A/B run's trajectory, its newest camera (larger and thicker than A's) and a
+        label "B: <variant>" at that camera; nothing without an A/B run."""
         if other is None:
-            self._segments("/ab/trajectory", np.zeros((0, 2, 3)), COLOR_B, thickness=2.0)
-            self._segments("/ab/camera", np.zeros((0, 2, 3)), COLOR_B, thickness=2.0)
+            self._segments("/ab/trajectory", np.zeros((0, 2, 3)), COLOR_B, thickness=3.0)
+            self._segments("/ab/camera", np.zeros((0, 2, 3)), COLOR_B, thickness=B_THICKNESS)
+            self._label_b(None, "")
             return
-        t = other.estimate.t_world_camera
-        self._segments("/ab/trajectory", polyline_segments(t), COLOR_B, thickness=2.0)
-        R = other.estimate.R_world_camera
-        self._segments("/ab/camera", frustum_segments(R[-1:], t[-1:], other.camera), COLOR_B, thickness=2.0)
+        t_world_camera = other.estimate.t_world_camera
+        self._segments("/ab/trajectory", polyline_segments(t_world_camera), COLOR_B, thickness=3.0)
+        R_world_camera = other.estimate.R_world_camera
+        frustum = frustum_segments(R_world_camera[-1:], t_world_camera[-1:], other.camera, depth=B_FRUSTUM_DEPTH_M)
+        self._segments("/ab/camera", frustum, COLOR_B, thickness=B_THICKNESS)
+        self._label_b(t_world_camera[-1], f"B: {other.variant}")
+
+    def _label_b(self, p_world: np.ndarray | None, text: str) -> None:
+        """The A/B run's label at `p_world` (B's newest camera centre, m); removed with None."""
+        if p_world is None:
+            self._keep("/ab/label", None)
+            return
+        handle = self._handles.get("/ab/label")
+        if isinstance(handle, viser.LabelHandle):
+            handle.position = np.asarray(p_world, float)
+            if handle.text != text:
+                handle.text = text
+            return
+        handle = self._server.scene.add_label("/ab/label", text, position=np.asarray(p_world, float), anchor="bottom-left", visible=self._visible("/ab/label"))
+        self._keep("/ab/label", handle)

@@ -11,6 +11,13 @@ engine's newest state (the -wo | -r | -w comparison) first puts the engines back
 were (`cancel_ahead`). The engine's results do not depend on when a step is computed, so
 what Step shows is what it would have computed then.
 
+Recording (`start_recording`): from then on every snapshot the history gains (steps and
+variants), the variant chosen last at each keyframe and the plane-mode comparison of each
+step's window go to a `RecordingWriter` (backend/pipeline/recording.py), encoded at once;
+what the history keeps when it starts is recorded first. A replay engine
+(backend/pipeline/replay_engine.py) offers every variant it recorded at a keyframe with the
+step; they enter the history with it, the one chosen last shown.
+
 Everything here runs on the debugger's worker thread; it decides, the debugger shows."""
 
 from __future__ import annotations
@@ -22,8 +29,27 @@ from collections.abc import Callable
 from backend.optim.structure import HessianStructure
 from backend.optim.variant import VARIANTS, Variant
 from backend.pipeline.engine import EndOfSequence, Engine, EngineCheckpoint
+from backend.pipeline.recording import RecordingWriter
 from backend.pipeline.snapshot import FrameTrajectory, Snapshot
 from viewer.history import DEFAULT_MAX_BYTES, SnapshotHistory
+
+
+def second_engine(engine: Engine) -> Engine:
+    """A copy of `engine` in its state now that shares only its input and settings: the
+    parts it is composed of (`PARTS`, such as the image pipelines' core) are copied too and
+    refer to the copy, so stepping or re-optimizing one never moves the other (a shallow
+    copy shared the stereo pipeline's core: B's variant became A's)."""
+    copied = copy.copy(engine)
+    parts: tuple[str, ...] = getattr(engine, "PARTS", ())
+    for name in parts:
+        setattr(copied, name, copy.copy(getattr(engine, name)))
+    copied.restore(engine.checkpoint())
+    for name in parts:  # a part's reference to its engine (the core's plan) names the copy
+        part = getattr(copied, name)
+        for attr, value in list(vars(part).items()):
+            if value is engine:
+                setattr(part, attr, copied)
+    return copied
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,6 +90,10 @@ class Session:
         self.history_b: dict[int, Snapshot] = {}
         self._ahead: _Ahead | None = None
         self._ahead_failed = False  # the last step ahead raised: the next Step meets the error in place
+        # the newest keyframe's window, as its step left it, under each plane family (computed once)
+        self._compared: dict[tuple[int, bool], dict[Variant, HessianStructure]] = {}
+        self.recorder: RecordingWriter | None = None  # the last recording (kept for download after it stops)
+        self.recording = False
 
     @property
     def can_checkpoint(self) -> bool:
@@ -135,7 +165,20 @@ class Session:
             self.stop_ab()
         self._states_keyframe = None
         self._states = {}
+        self._compared = {}
         self.history.add_step(snapshot)
+        self._record(snapshot)
+        recorded = getattr(self.engine, "recorded_variants", None)
+        if recorded is not None:  # a replay: the variants recorded at this keyframe, the one chosen last shown
+            for kept in recorded():
+                self.history.add_variant(kept)
+                self._record(kept)
+            self.history.choose(snapshot.keyframe, self.engine.variant)
+            if self.recording and self.recorder is not None:
+                self.recorder.choose(snapshot.keyframe, self.engine.variant)
+            snapshot = self.history.get(snapshot.keyframe) or snapshot
+        if self.recording:
+            self.compare_hessians(snapshot.variant.family())  # recorded as the Hessian tab would show it
         return Stepped(snapshot, other, why)
 
     def _advance(self) -> tuple[Snapshot, Snapshot | None, str]:
@@ -173,6 +216,8 @@ class Session:
             self.engine.restore(self._states[variant])
             self.engine.set_variant(variant)
             self.history.choose(k, variant)
+            if self.recording and self.recorder is not None:
+                self.recorder.choose(k, variant)
             return kept
         busy(f"re-optimizing the window with {variant} …")
         if has_states:
@@ -182,11 +227,23 @@ class Session:
         if has_states:
             self._states[variant] = self.engine.checkpoint()
         self.history.add_variant(snapshot)
+        self._record(snapshot)
         return snapshot
 
     def compare_hessians(self, family: tuple[Variant, ...]) -> dict[Variant, HessianStructure]:
         """The newest window as its step left it (not as a variant chosen there re-optimized
-        it) linearized under each of `family`; the engine is left as it was."""
+        it) linearized under each of `family`; the engine is left as it was. Computed once
+        per keyframe and feature set (and recorded while recording)."""
+        key = (self.history.newest_keyframe if self.history else -1, bool(family) and family[0].with_lines)
+        if key in self._compared:
+            return self._compared[key]
+        structures = self._compare(family)
+        self._compared[key] = structures
+        if self.recording and self.recorder is not None and structures:
+            self.recorder.add_comparison(key[0], dict(structures))
+        return structures
+
+    def _compare(self, family: tuple[Variant, ...]) -> dict[Variant, HessianStructure]:
         self.cancel_ahead()
         base = self._states.get("base") if self._states_keyframe == self.history.newest_keyframe else None
         current = self._states.get(self.engine.variant)
@@ -209,8 +266,7 @@ class Session:
         """B: a copy of the engine from its state now, with `variant` (its window re-optimized
         at once when there is a keyframe). The engine must be able to checkpoint."""
         self.cancel_ahead()
-        engine_b = copy.copy(self.engine)
-        engine_b.restore(self.engine.checkpoint())
+        engine_b = second_engine(self.engine)
         engine_b.set_variant(variant)
         self.engine_b = engine_b
         self.history_b = {}
@@ -234,6 +290,30 @@ class Session:
         self.stop_ab()
         self._states_keyframe = None
         self._states = {}
+        self._compared = {}
+        self.recording = False  # the recording so far stays for download; keyframe numbers start again
+
+    def start_recording(self) -> RecordingWriter:
+        """Record from now on (module docstring), starting with what the history keeps."""
+        recorder = RecordingWriter(source=self.engine.source)
+        for k in self.history.keyframes():
+            for snapshot in self.history.variants_at(k).values():
+                recorder.add(snapshot)
+            latest = self.history.get(k)
+            if latest is not None:
+                recorder.choose(k, latest.variant)
+        for (k, _), structures in self._compared.items():
+            recorder.add_comparison(k, dict(structures))
+        self.recorder, self.recording = recorder, True
+        return recorder
+
+    def stop_recording(self) -> None:
+        """Stop recording; what was recorded stays (`recorder`)."""
+        self.recording = False
+
+    def _record(self, snapshot: Snapshot) -> None:
+        if self.recording and self.recorder is not None:
+            self.recorder.add(snapshot)
 
     def _keep_b(self, snapshot: Snapshot) -> None:
         self.history_b[snapshot.keyframe] = snapshot

@@ -42,6 +42,10 @@ class RunError(Exception):
     """A run that ended without results (no keyframe in its input): one line."""
 
 
+class RecordPathError(RunError):
+    """`record` names a file that cannot be written; the message starts with its path."""
+
+
 class OutputError(RunError):
     """The output folder cannot be made or written; the message starts with its path and
     nothing was written there."""
@@ -66,13 +70,17 @@ def run_headless(
     dense: bool = False,
     trajectory_frame: TrajectoryFrame = TrajectoryFrame.TRUTH,
     progress: bool = True,
+    record: pathlib.Path | None = None,
 ) -> RunResult:
     """Run `config`'s engine (built by `make_engine`) to the end of its input, or to
     `keyframes` keyframes (the Monte-Carlo worlds: one pass of their trajectory by default),
     and write its outputs to `out` (made if missing). `dense`: image inputs also fuse the
     keyframes' depth into `mesh.ply` (needs open3d). `trajectory_frame`: what the written
     trajectories are poses of (the dataset's ground truth's frame, or the camera). `progress`: a tqdm bar on stderr (drawn on
-    a terminal only) and the engine's messages written under it.
+    a terminal only) and the engine's messages written under it. `record`: also write every
+    snapshot, with the window's plane-mode comparison, to this recording file
+    (backend.pipeline.recording; the engine should be interactive, so that snapshots carry
+    the keyframe image and the Hessian), with the outputs: both or neither.
 
     Raises what `make_engine` raises for a bad input (DatasetError, ValueError, SegmenterError),
     DatasetError for a frame found bad during the run, :class:`RunError` when the input gives
@@ -84,16 +92,59 @@ def run_headless(
     if keyframes is not None and keyframes < 1:
         raise ValueError(f"keyframes {keyframes}: must be at least 1")
     start = time.perf_counter()
+    if record is not None:
+        check_record_path(record)
     engine = make_engine(config)
+    recorder = _Recorder(engine, record) if record is not None else None
     if isinstance(engine, SimEngine):
-        metrics, summary, write = _simulate(engine, config, out, keyframes=keyframes, choice=trajectory_frame, progress=progress)
+        metrics, summary, write = _simulate(engine, config, out, keyframes=keyframes, choice=trajectory_frame, progress=progress, recorder=recorder)
     else:
-        metrics, summary, write = _track(engine, config, out, keyframes=keyframes, dense=dense, choice=trajectory_frame, progress=progress)
+        metrics, summary, write = _track(engine, config, out, keyframes=keyframes, dense=dense, choice=trajectory_frame, progress=progress, recorder=recorder)
+    if recorder is not None:
+        write = recorder.then_write(write)
+        summary += f"; recorded {recorder.writer.keyframes} keyframes to {record}"
     _write_staged(out, write)
     return RunResult(metrics=json_safe(metrics), summary=summary, wall_s=time.perf_counter() - start)
 
 
 _Writer = Callable[[pathlib.Path], None]
+
+
+def check_record_path(path: pathlib.Path) -> None:
+    """RecordPathError unless a recording can be written at `path` (its folder exists and is
+    writable; not a folder itself)."""
+    import os
+
+    folder = path.parent if str(path.parent) else pathlib.Path(".")
+    if path.is_dir():
+        raise RecordPathError(f"{path}: is a folder (a recording is one file)")
+    if not folder.is_dir():
+        raise RecordPathError(f"{path}: the folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise RecordPathError(f"{path}: cannot write in {folder}")
+
+
+class _Recorder:
+    """A run's recording: each snapshot with its window's plane-mode comparison, written to
+    `path` just before the outputs are moved into place."""
+
+    def __init__(self, engine: Any, path: pathlib.Path) -> None:
+        from backend.pipeline.recording import RecordingWriter
+
+        self.engine = engine
+        self.path = path
+        self.writer = RecordingWriter(source=engine.source)
+
+    def add(self, snapshot: Snapshot) -> None:
+        self.writer.add(snapshot)
+        self.writer.add_comparison(snapshot.keyframe, dict(self.engine.compare_hessians(snapshot.variant.family())))
+
+    def then_write(self, write: _Writer) -> _Writer:
+        def both(folder: pathlib.Path) -> None:
+            write(folder)
+            self.writer.write(self.path)
+
+        return both
 
 
 def prepare_out(out: pathlib.Path) -> None:
@@ -207,7 +258,9 @@ def _cm(value: float | None) -> str:
     return f"{value:.2f} cm" if value is not None and math.isfinite(value) else "n/a (no ground truth)"
 
 
-def _simulate(engine: SimEngine, config: EngineConfig, out: pathlib.Path, *, keyframes: int | None, choice: TrajectoryFrame, progress: bool) -> tuple[dict[str, Any], str, _Writer]:
+def _simulate(
+    engine: SimEngine, config: EngineConfig, out: pathlib.Path, *, keyframes: int | None, choice: TrajectoryFrame, progress: bool, recorder: _Recorder | None
+) -> tuple[dict[str, Any], str, _Writer]:
     """A Monte-Carlo world's run: `keyframes` steps (default one pass of its trajectory)."""
     import numpy as np
     from tqdm import tqdm
@@ -224,6 +277,8 @@ def _simulate(engine: SimEngine, config: EngineConfig, out: pathlib.Path, *, key
             snapshot = engine.step()
             for stage, ms in snapshot.report.timing_ms.items():
                 timings.setdefault(stage, []).append(ms)
+            if recorder is not None:
+                recorder.add(snapshot)
             bar.update(1)
     assert snapshot is not None
     mean = {k: float(np.mean(v)) for k, v in timings.items()}
@@ -281,7 +336,9 @@ def _excitation_onset(source: Any) -> float | None:
     return excitation_onset_s(np.asarray(source.timestamps_ns), p_world)
 
 
-def _track(engine: Any, config: EngineConfig, out: pathlib.Path, *, keyframes: int | None, dense: bool, choice: TrajectoryFrame, progress: bool) -> tuple[dict[str, Any], str, _Writer]:
+def _track(
+    engine: Any, config: EngineConfig, out: pathlib.Path, *, keyframes: int | None, dense: bool, choice: TrajectoryFrame, progress: bool, recorder: _Recorder | None
+) -> tuple[dict[str, Any], str, _Writer]:
     """An image input's run (stereo or VIO): every frame up to `keyframes` keyframes."""
     from tqdm import tqdm
 
@@ -308,6 +365,8 @@ def _track(engine: Any, config: EngineConfig, out: pathlib.Path, *, keyframes: i
                 break
             tracking = snapshot.tracking
             steps.append((tracking.frames, dict(snapshot.report.timing_ms)))
+            if recorder is not None:
+                recorder.add(snapshot)
             lost += tracking.lost_frames
             reinitializations += tracking.reinitializations
             reasons[tracking.keyframe_reason] = reasons.get(tracking.keyframe_reason, 0) + 1

@@ -435,3 +435,39 @@ def test_corrupt_segmenter_model_is_one_error_line(tmp_path: pathlib.Path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.onnx: not a loadable ONNX model" in err[0]
     assert not (tmp_path / "run").exists()
+
+
+def test_run_record_writes_a_recording_serve_replays(tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`run --record FILE`: the outputs and one recording of every keyframe, with the image,
+    the Hessian and the plane-mode comparison; `serve --replay FILE` builds its replay, whose
+    last keyframe is the map the run wrote."""
+    from app.serve_command import build_engine
+    from backend.pipeline.recording import Recording
+
+    record = tmp_path / "room.recording.zip"
+    assert cli.main(["run", "--scene", "room", "--duration", "3", "--variant", "PL-w", "--out", str(tmp_path / "out"), "--record", str(record)]) == 0
+    summary = capsys.readouterr().out
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert f"recorded {metrics['keyframes']} keyframes to {record}" in summary
+    recording = Recording.open(record)
+    assert len(recording) == metrics["keyframes"]
+    last = recording.keyframes[-1]
+    snapshot = recording.snapshot(last.keyframe, last.stepped)
+    assert snapshot.image is not None and snapshot.hessian is not None and len(snapshot.points) == metrics["points"]
+    assert set(recording.comparison(last.keyframe, with_lines=True)) == {"PL-wo", "PL-r", "PL-w"}
+    engine = build_engine(cli.build_parser().parse_args(["serve", "--replay", str(record)]))
+    assert engine.keyframes == metrics["keyframes"] and engine.source.endswith(f"(replay of {record.name})")
+
+
+def test_run_record_to_a_missing_folder_is_one_line_before_the_run(tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "no" / "rec.zip"
+    assert cli.main(["run", "--scene", "mc-a", "--keyframes", "2", "--variant", "P-wo", "--out", str(tmp_path / "out"), "--record", str(missing)]) == 2
+    assert capsys.readouterr().err == f"error: --record {missing}: the folder {missing.parent} does not exist\n"
+    assert not (tmp_path / "out").exists()
+
+
+def test_serve_replay_of_a_file_that_is_not_a_recording_is_one_line(tmp_path: pathlib.Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "map.ply"
+    bad.write_bytes(b"ply\nformat ascii 1.0\n")
+    assert cli.main(["serve", "--replay", str(bad)]) == 2
+    assert capsys.readouterr().err == f"error: --replay {bad}: not a coplanar recording (not a zip archive, or a truncated one)\n"

@@ -19,7 +19,7 @@ def test_dense_layer_builds_in_the_background_and_reports_its_distance(browser, 
         snapshot = debugger.history[-1]
         page = open_page(browser, debugger, height=1000)
         wait_shown(page, f"{snapshot.keyframe} (PL-w)")
-        field(page, "Dense mesh (TSDF)").click()
+        field(page, "Dense mesh").click()
         page.get_by_text(f"dense mesh of keyframe {snapshot.keyframe}").first.wait_for()
         assert debugger.dense.built >= 1
         text = page.get_by_text(f"dense mesh of keyframe {snapshot.keyframe}").first.inner_text()
@@ -34,7 +34,7 @@ def test_dense_layer_builds_in_the_background_and_reports_its_distance(browser, 
         page.wait_for_timeout(1500)
         path = pathlib.Path(os.environ.get("COPLANAR_README_SCREENSHOT_DENSE", tmp_path / "dense_debugger.png"))
         page.screenshot(path=str(path))
-        field(page, "Dense mesh (TSDF)").click()
+        field(page, "Dense mesh").click()
         page.wait_for_timeout(300)
         page.close()
     finally:

@@ -66,3 +66,37 @@ def test_trajectory_downloads_are_poses_of_the_ground_truths_frame() -> None:
     rows = np.loadtxt(text.splitlines())
     R, t = np.asarray(snap.estimate.R_world_camera), np.asarray(snap.estimate.t_world_camera)
     np.testing.assert_allclose(rows[:, 1:4], t - R @ np.array([0.1, 0.0, 0.0]), atol=1e-8)  # T_world_rect0 · T_body_rect0⁻¹
+
+
+def _vio(*, initialized: bool, sigma: float = 0.02, excitation: float = 0.6, rotation: float = 90.0, truth: float | None = None):
+    import dataclasses
+
+    from backend.pipeline.snapshot import ImuState
+
+    report = {"span_s": 4.75, "quality": {"scale_rel_std": sigma, "accel_excitation_mps2": excitation, "rotation_span_deg": rotation}}
+    if truth is not None:
+        report["joint_scale_error_pct"] = truth
+    imu = ImuState(
+        initialized=initialized,
+        status="structure from motion: 6 keyframes over 1.1 s" if not initialized else "initialized",
+        init_keyframe=24 if initialized else -1,
+        report=report if initialized else {},
+        velocity_world=np.zeros((1, 3)),
+        bias=np.zeros((1, 6)),
+        gravity_world=np.array([0.0, 0.0, -9.81]),
+    )
+    return dataclasses.replace(SimEngine(SimSettings(window=4, max_iterations=2)).step(), imu=imu)
+
+
+def test_the_vio_start_says_how_well_its_scale_is_known_and_why_it_is_poor() -> None:
+    assert panels.vio_start_note(SimEngine(SimSettings(window=4, max_iterations=2)).step()) == ""
+    assert panels.vio_start_note(_vio(initialized=False)) == "VIO not initialized yet: structure from motion: 6 keyframes over 1.1 s"
+    good = panels.vio_start_note(_vio(initialized=True, sigma=0.02, truth=-2.2))
+    assert good == "VIO initialized at keyframe 24 (4.8 s of motion), the alignment's scale known to ±2 % (1σ); after the joint solve -2.2 % against the truth"
+    poor = panels.vio_start_note(_vio(initialized=True, sigma=0.14, excitation=0.12, rotation=8.0))
+    assert poor.startswith(
+        "**uncertain VIO start**: initialized at keyframe 24 (4.8 s of motion), the alignment's scale known to ±14 % (1σ), "
+        "because the start had little acceleration (0.12 m/s²) and little rotation (8°). "
+    )
+    assert "the start's motion barely constrains it" in panels.vio_start_note(_vio(initialized=True, sigma=0.14))
+    assert "`--speed 2`" in poor and "Reset" in poor
