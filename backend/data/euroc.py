@@ -52,7 +52,7 @@ from backend.data.calibration import (
     read_sensor_transform,
     stereo_rectification,
 )
-from backend.data.errors import DatasetError, read_text
+from backend.data.errors import DatasetError, not_regular, read_bytes, read_text
 from backend.data.motion import ImuData, ImuNoise
 from backend.geometry.camera import PinholeCamera
 
@@ -416,11 +416,14 @@ def _read_camera_csv(camera_dir: pathlib.Path) -> tuple[np.ndarray, list[int], l
 
 def _stereo_images(camera_dir: pathlib.Path, lines: list[int], names: list[str]) -> list[pathlib.Path]:
     """The image files of a camera's stereo-frame rows (`lines` of its `data.csv`); every one
-    must exist, else a DatasetError naming the list, the line and the image."""
+    must be a regular file inside `camera_dir/data` (a name that is absolute or climbs out
+    with `..` is refused, a FIFO or a device too, without opening it), else a DatasetError
+    naming the list, the line and the image. Links are followed: a dataset may link its
+    images from elsewhere."""
     path = camera_dir / "data.csv"
     data_dir = camera_dir / "data"
     try:
-        present = set(os.listdir(data_dir))
+        os.listdir(data_dir)  # the folder itself: missing, not a folder, unreadable
     except FileNotFoundError:
         raise DatasetError(data_dir, f"missing folder (the images listed in {path})") from None
     except NotADirectoryError:
@@ -430,8 +433,15 @@ def _stereo_images(camera_dir: pathlib.Path, lines: list[int], names: list[str])
     images = []
     for line, name in zip(lines, names):
         image = data_dir / name
-        if name not in present and not image.is_file():
-            raise DatasetError(path, f"image {image} is listed but absent", line=line)
+        if pathlib.PurePath(name).is_absolute() or ".." in pathlib.PurePath(name).parts:
+            raise DatasetError(path, f"image {name!r} lies outside {data_dir} (an absolute path or '..'): refused", line=line)
+        try:
+            mode = image.stat().st_mode
+        except OSError:
+            raise DatasetError(path, f"image {image} is listed but absent", line=line) from None
+        kind = not_regular(mode)
+        if kind is not None:
+            raise DatasetError(path, f"image {image} is {kind}, not a regular file: refused", line=line)
         images.append(image)
     return images
 
@@ -540,10 +550,7 @@ def _load_gray(path: pathlib.Path, calibration: CameraCalibration, *, sixteen_bi
     """Grayscale uint8 image of the calibration's size. EuRoC's images are 8-bit grey;
     8-bit colour is converted to grey; with `sixteen_bit` (TUM-VI's exports), 16-bit pixels
     keep their high byte (`>> 8`); any other depth is an error naming the file."""
-    try:
-        encoded = np.fromfile(path, dtype=np.uint8)
-    except OSError as error:
-        raise DatasetError(path, f"cannot read image ({error.strerror or error})") from None
+    encoded = np.frombuffer(read_bytes(path, what="image"), dtype=np.uint8)
     image = _decode_quietly(encoded)
     if image is None:
         raise DatasetError(path, "not a readable image")

@@ -39,7 +39,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from backend.data.calibration import MAX_RESOLUTION_PX
-from backend.data.errors import DatasetError, read_text
+from backend.data.errors import DatasetError, read_bytes, read_text
 from backend.data.euroc import _decode_quietly
 from backend.data.motion import ImuData, ImuNoise
 from backend.geometry.camera import PinholeCamera
@@ -264,10 +264,7 @@ def _image_size(path: pathlib.Path) -> tuple[int, int]:
 def _load_gray(path: pathlib.Path, *, size: tuple[int, int]) -> np.ndarray:
     """A grey uint8 image (H, W) of `size` (width, height); 8-bit colour is read as grey,
     any other depth or size is a DatasetError naming the file."""
-    try:
-        encoded = np.fromfile(path, dtype=np.uint8)
-    except OSError as error:
-        raise DatasetError(path, f"cannot read image ({error.strerror or error})") from None
+    encoded = np.frombuffer(read_bytes(path, what="image"), dtype=np.uint8)
     image = _decode_quietly(encoded)
     if image is None:
         raise DatasetError(path, "not a readable image")

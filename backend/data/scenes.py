@@ -330,13 +330,13 @@ def scene_from_dict(data: Any) -> Scene:
 def load_scene(path: str | os.PathLike[str]) -> Scene:
     """A scene from a JSON file; SceneFileError (one line naming the file) when it cannot
     be read or is malformed."""
+    from backend.data.errors import DatasetError, read_text
+
     path = pathlib.Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SceneFileError(path, "missing file") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise SceneFileError(path, f"cannot read ({error})") from None
+        text = read_text(path)  # a regular file only: a FIFO would block
+    except DatasetError as error:
+        raise SceneFileError(path, error.reason) from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as error:

@@ -315,10 +315,12 @@ def matrix_from(file_values: Mapping[str, object] | None, option_values: Mapping
 def read_toml(path: pathlib.Path) -> dict[str, object]:
     """A sweep's TOML file: its top-level keys (MatrixError, naming the file, when it cannot be
     read or is not TOML)."""
+    from backend.data.errors import DatasetError, read_text
+
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise MatrixError(f"{path}: cannot read it: {getattr(e, 'strerror', None) or e}") from None
+        text = read_text(path)  # a regular file only: a FIFO would block
+    except DatasetError as e:
+        raise MatrixError(f"{path}: cannot read it: {e.reason}") from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

@@ -128,3 +128,52 @@ def test_a_16_bit_image_is_one_line_and_a_colour_one_is_read_as_grey(rendered: p
     rc, _, err = _run(["--dataset", str(root), "--variant", "P-wo", "--out", str(tmp_path / "cut")])
     assert rc == 2
     _one_error_line(err + capfd.readouterr().err, [str(images[1]), "not a readable image"])
+
+
+def _edit_row(root: pathlib.Path, row: int, name: str) -> None:
+    """cam0's data.csv with the image name of data row `row` (1-based) replaced."""
+    csv = root / "mav0" / "cam0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    data = [i for i, line in enumerate(lines) if line and not line.startswith("#")]
+    stamp = lines[data[row - 1]].split(",")[0]
+    lines[data[row - 1]] = f"{stamp},{name}"
+    csv.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("kind", ["absolute", "climbing", "fifo", "folder"])
+def test_an_image_outside_the_dataset_or_not_a_file_is_refused_with_its_line(rendered: pathlib.Path, tmp_path: pathlib.Path, kind: str) -> None:
+    """data.csv may not name a file anywhere on disk (an absolute path, `..`), and an image
+    that is a FIFO or a folder is refused without opening it: a FIFO blocked the run
+    forever, an absolute path was read."""
+    import os
+    import signal
+
+    root = tmp_path / "seq"
+    shutil.copytree(rendered, root)
+    images = root / "mav0" / "cam0" / "data"
+    rows = [line for line in (root / "mav0" / "cam0" / "data.csv").read_text().splitlines() if line and not line.startswith("#")]
+    third = images / rows[2].split(",")[1]
+    if kind == "absolute":
+        _edit_row(root, 3, str(third))
+    elif kind == "climbing":
+        _edit_row(root, 3, f"../data/{third.name}")
+    elif kind == "fifo":
+        third.unlink()
+        os.mkfifo(third)
+    else:
+        third.unlink()
+        third.mkdir()
+
+    def blocked(_signum: int, _frame: object) -> None:
+        raise TimeoutError("the run blocked")
+
+    previous = signal.signal(signal.SIGALRM, blocked)
+    signal.alarm(120)
+    try:
+        rc, _, err = _run(["--dataset", str(root), "--variant", "P-wo", "--out", str(tmp_path / "out")])
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    assert rc == 2 and not (tmp_path / "out").exists()
+    words = {"absolute": ["outside", "refused"], "climbing": ["outside", "'..'"], "fifo": ["is a FIFO", "refused"], "folder": ["is a folder", "refused"]}[kind]
+    _one_error_line(err, ["mav0/cam0/data.csv line 4", *words])  # line 1 is the header

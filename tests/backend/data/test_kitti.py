@@ -123,7 +123,7 @@ def test_images_load_lazily_and_a_broken_one_is_one_line_when_read(tmp_path: pat
         source.rectified_pair(2)
     assert str(error.value).startswith(str(broken)) and "\n" not in str(error.value)
     broken.unlink()
-    with pytest.raises(DatasetError, match="cannot read image"):
+    with pytest.raises(DatasetError, match="missing image"):
         source.rectified_pair(2)
     Image.fromarray(np.zeros((HEIGHT, WIDTH + 1), np.uint8)).save(broken)
     with pytest.raises(DatasetError, match=f"image is {WIDTH + 1}x{HEIGHT}"):
