@@ -8,14 +8,35 @@ import os
 # cost more than they gain there. Must be set before numpy loads.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse
 import signal
 import sys
-from collections.abc import Sequence
-from typing import NoReturn
+import threading
 
-from app import render_command, run_command, serve_command, sim_command, sweep_command
-from app.errors import EXIT_BAD_INPUT, UsageError, one_line
+
+def _interrupted_while_starting(_number: int, _frame: object) -> None:
+    """Ctrl-C or SIGTERM while the command line loads: one line, nothing was started."""
+    sys.stderr.write("interrupted\n")
+    sys.stderr.flush()
+    os._exit(130)
+
+
+# Until `main` takes over (its own handlers, one line for every interruption), a signal while
+# the modules below load ends the command with one line instead of a traceback.
+_STARTING = threading.current_thread() is threading.main_thread()
+if _STARTING:
+    _sigint = signal.signal(signal.SIGINT, _interrupted_while_starting)
+    _sigterm = signal.signal(signal.SIGTERM, _interrupted_while_starting)
+
+import argparse  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+from typing import NoReturn  # noqa: E402
+
+from app import render_command, run_command, serve_command, sim_command, sweep_command  # noqa: E402
+from app.errors import EXIT_BAD_INPUT, UsageError, one_line  # noqa: E402
+
+if _STARTING:
+    signal.signal(signal.SIGINT, _sigint)
+    signal.signal(signal.SIGTERM, _sigterm)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -39,10 +60,10 @@ def _interrupt(_number: int, _frame: object) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
     if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
         signal.signal(signal.SIGTERM, _interrupt)  # `kill PID` ends a command like Ctrl-C: no half-written files
     try:
+        parser = build_parser()  # loads the commands' options (scenes, variants): an interruption here is one line too
         args = parser.parse_args(argv)
         return int(args.run(args) or 0)
     except UsageError as e:

@@ -9,8 +9,6 @@ import platform
 import sys
 from collections.abc import Sequence
 
-import numpy as np
-
 from backend.optim.variant import VARIANT_NAMES, VARIANTS, Variant
 
 
@@ -114,6 +112,8 @@ def write_plot(path: pathlib.Path, sequence: str, runs: int, results: list, vari
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from app.errors import UsageError
     from backend.eval import montecarlo, sequences
     from backend.optim.problem import build_problem

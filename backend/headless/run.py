@@ -94,6 +94,7 @@ def run_headless(
     start = time.perf_counter()
     if record is not None:
         check_record_path(record)
+    _load_export_libraries()
     engine = make_engine(config)
     recorder = _Recorder(engine, record) if record is not None else None
     if isinstance(engine, SimEngine):
@@ -108,6 +109,19 @@ def run_headless(
 
 
 _Writer = Callable[[pathlib.Path], None]
+
+
+def _load_export_libraries() -> None:
+    """Import what the export needs (open3d) before the run, not during its export, with an
+    interruption held until the import has finished (backend.common.optional): a Ctrl-C
+    there read as a missing library, and the run wrote map.ply only and exited 0. Where
+    open3d is missing the export says so and writes map.ply (`_write_outputs`)."""
+    from backend.common.optional import MissingLibraryError, require_open3d
+
+    try:
+        require_open3d()
+    except MissingLibraryError:
+        pass
 
 
 def check_record_path(path: pathlib.Path) -> None:
