@@ -234,5 +234,18 @@ def dataset_format(path: pathlib.Path | str) -> DatasetFormat:
 
 
 def open_dataset(path: pathlib.Path | str, options: ReaderOptions = ReaderOptions()) -> StereoSource:
-    """The input at `path`, read by the format that recognizes it (:func:`dataset_format`)."""
-    return dataset_format(path).open(pathlib.Path(path), options)
+    """The input at `path`, read by the format that recognizes it (:func:`dataset_format`),
+    and checked for what no parser rejects (backend/data/plausibility.py): a DatasetError
+    where the data cannot be right (cam0 and cam1 swapped), warnings in its `warnings` where
+    they may be (pairs out of step, ground truth that covers few frames)."""
+    from backend.data.plausibility import check_ground_truth, check_pairs
+
+    source = dataset_format(path).open(pathlib.Path(path), options)
+    where = str(path)
+    found = check_pairs(source, where=where)
+    if isinstance(source, GroundTruthSamples):
+        truth_ns, _ = source.ground_truth_samples()
+        found += check_ground_truth(np.asarray(source.timestamps_ns), truth_ns, np.asarray(source.ground_truth_valid), where=where)
+    if found:
+        source.warnings = (*getattr(source, "warnings", ()), *found)  # type: ignore[attr-defined]  # printed and written to metrics.json
+    return source

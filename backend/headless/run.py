@@ -268,8 +268,29 @@ def _no_ground_truth(estimate: Trajectory) -> Trajectory:
     return Trajectory.of(np.asarray(estimate.timestamp_ns), np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan))
 
 
-def _cm(value: float | None) -> str:
-    return f"{value:.2f} cm" if value is not None and math.isfinite(value) else "n/a (no ground truth)"
+def _cm(value: float | None, *, why: str = "no ground truth") -> str:
+    return f"{value:.2f} cm" if value is not None and math.isfinite(value) else f"n/a ({why})"
+
+
+def _scale_warnings(written: Evaluated, *, stereo: bool) -> list[str]:
+    """A warning when the ground truth is not in metres (backend/data/plausibility.py)."""
+    from backend.data.plausibility import ground_truth_scale_warning
+
+    found = ground_truth_scale_warning(written.poses.t_world_camera, written.truth.t_world_camera, stereo=stereo)
+    return [found] if found else []
+
+
+def _no_error_because(source: Any, evaluated: int) -> str:
+    """Why a run has no trajectory error: the input has no ground truth, it covers none of
+    the frames, or too few of them were tracked."""
+    import numpy as np
+
+    valid = np.asarray(getattr(source, "ground_truth_valid", np.zeros(0, bool)))
+    samples = getattr(source, "ground_truth_samples", None)
+    has_file = samples is not None and samples()[0].shape[0] > 0
+    if valid.any():
+        return f"{evaluated} tracked frames with ground truth, fewer than 3"
+    return "the ground truth covers none of the frames: see the warning" if has_file else "no ground truth"
 
 
 def _simulate(
@@ -421,7 +442,7 @@ def _track(
         "keyframe_reasons": reasons,
         "timing_ms": stereo_timing(steps),
         "messages": messages,
-        "warnings": list(getattr(source, "warnings", ())),
+        "warnings": list(getattr(source, "warnings", ())) + _scale_warnings(written, stereo=snapshot.imu is None),
     }
     if isinstance(source, RenderedPlanes):
         metrics["plane_recovery"] = {"note": PLANE_RECOVERY_NOTE, **plane_recovery(source, snapshot.estimate.timestamp_ns, snapshot.planes)}
@@ -436,9 +457,10 @@ def _track(
         _write_outputs(folder, final, metrics, frame=frame, frames=written.poses, keyframes=kf.poses, groundtruth=written.groundtruth)
 
     per_frame = metrics["timing_ms"]["total_per_frame"]
+    why = _no_error_because(source, int(metrics["frames_evaluated"] or 0))
     summary = (
-        f"{engine.frames} frames, {metrics['keyframes']} keyframes, {variant}: ATE {_cm(metrics['ate_rmse_cm'])} (SE3-aligned, "
-        f"{metrics['frames_evaluated']} frames), RMSE {_cm(metrics['rmse_cm'])}, {len(snapshot.planes)} planes, {lost} lost frames, "
+        f"{engine.frames} frames, {metrics['keyframes']} keyframes, {variant}: ATE {_cm(metrics['ate_rmse_cm'], why=why)} (SE3-aligned, "
+        f"{metrics['frames_evaluated']} frames), RMSE {_cm(metrics['rmse_cm'], why=why)}, {len(snapshot.planes)} planes, {lost} lost frames, "
         f"{reinitializations} re-initializations; {per_frame:.1f} ms per frame; "
         f"wrote {out}/trajectory.txt, keyframes.txt, groundtruth.txt (poses of {frame.name}), metrics.json, map.ply, points.ply, lines.ply, planes.ply, cameras.ply"
     )

@@ -157,6 +157,11 @@ def make_engine(config: EngineConfig) -> Engine:
 
         vio_settings = VioSettings(variant=config.variant, window=config.window or default_window(Mode.VIO), seed=config.seed, **_stage_options(config))
         inertial = cast("InertialSource", source)  # asked for its IMU at once: without one, a DatasetError (one line)
+        if config.dataset is not None:  # a recorded IMU: its units (rendered ones are the simulator's)
+            from backend.data.plausibility import check_imu
+
+            imu = inertial.imu
+            check_imu(imu.timestamp_ns, imu.gyro, imu.accel, where=inertial.imu_label)
         return VioEngine(inertial, settings=vio_settings, name=f"{name}, VIO, {_segmenter_kind(config)} segmenter", segmenter=segmenter)
     from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
 
@@ -183,10 +188,10 @@ def _stage_options(config: EngineConfig) -> dict[str, Any]:
 def _open_images(config: EngineConfig) -> tuple[object, str]:
     """The image source and its name as the debugger and the reports show it."""
     if config.dataset is not None:
-        from backend.data.source import dataset_format
+        from backend.data.source import dataset_format, open_dataset
 
         fmt = dataset_format(config.dataset)
-        return fmt.open(pathlib.Path(config.dataset), config.reader), f"{fmt.label} {config.dataset}"
+        return open_dataset(config.dataset, config.reader), f"{fmt.label} {config.dataset}"  # read and checked (plausibility)
     from backend.data.scenes import DEFAULT_SCENE, SCENE_NAMES, builtin_scene, load_scene
     from backend.data.synthetic import SequenceSettings, SyntheticSequence
 
