@@ -33,6 +33,7 @@ from typing import NoReturn  # noqa: E402
 
 from app import render_command, run_command, serve_command, sim_command, sweep_command  # noqa: E402
 from app.errors import EXIT_BAD_INPUT, UsageError, one_line  # noqa: E402
+from backend.common.native_output import say  # noqa: E402
 
 if _STARTING:
     signal.signal(signal.SIGINT, _sigint)
@@ -59,34 +60,90 @@ def _interrupt(_number: int, _frame: object) -> None:
     raise KeyboardInterrupt
 
 
+_default_unraisable = sys.unraisablehook
+
+
+def _unraisable(info: sys.UnraisableHookArgs) -> None:
+    """A KeyboardInterrupt that C code swallowed (raised inside a callback from a library,
+    e.g. llvmlite's while numba compiles: "Exception ignored in ...", and the run went on)
+    is raised again in the main thread, where it ends the command in one line."""
+    if isinstance(info.exc_value, KeyboardInterrupt):
+        import _thread
+
+        _thread.interrupt_main()
+        return
+    _default_unraisable(info)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
         signal.signal(signal.SIGTERM, _interrupt)  # `kill PID` ends a command like Ctrl-C: no half-written files
+    previous_hook, sys.unraisablehook = sys.unraisablehook, _unraisable
+    try:
+        return _run(argv)
+    finally:
+        sys.unraisablehook = previous_hook
+
+
+def _run(argv: Sequence[str] | None) -> int:
+    """Parse and run the command: every expected failure one line (module docstring)."""
     try:
         parser = build_parser()  # loads the commands' options (scenes, variants): an interruption here is one line too
         args = parser.parse_args(argv)
         return int(args.run(args) or 0)
     except UsageError as e:
-        print(f"error: {one_line(e)}", file=sys.stderr)
+        say(f"error: {one_line(e)}")
         return EXIT_BAD_INPUT
     except Exception as e:  # a dataset problem the user can fix: one line, no traceback
         from backend.common.optional import MissingLibraryError
         from backend.data.errors import DatasetError
 
+        if _caused_by_interrupt(e):  # a Ctrl-C that compiled code wrapped (numba: "SystemError: ... returned a result with an exception set")
+            say("interrupted")
+            return 130
         if isinstance(e, (DatasetError, MissingLibraryError)):
-            print(f"error: {one_line(e)}", file=sys.stderr)
+            say(f"error: {one_line(e)}")
         elif isinstance(e, ValueError) and "null" in str(e) and ("byte" in str(e) or "character" in str(e)):
-            print("error: a file name or address with a NUL character", file=sys.stderr)
+            say("error: a file name or address with a NUL character")
         elif isinstance(e, OSError):  # the environment (a full disk, a folder that went away): one line naming the file
             where = f"{e.filename}: " if e.filename else ""
-            print(one_line(f"error: {where}{e.strerror}" if e.strerror else f"error: {e}"), file=sys.stderr)
+            say(one_line(f"error: {where}{e.strerror}" if e.strerror else f"error: {e}"))
         else:
             raise
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as e:
-        print(one_line(f"interrupted: {e}") if str(e) else "interrupted", file=sys.stderr)
+        say(one_line(f"interrupted: {e}") if str(e) else "interrupted")
         return 130
 
 
+def _caused_by_interrupt(error: BaseException) -> bool:
+    """Whether a KeyboardInterrupt lies in `error`'s chain of causes and contexts."""
+    seen: set[int] = set()
+    current: BaseException | None = error
+    while current is not None and id(current) not in seen:
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return False
+
+
+def entry() -> int:
+    """The `coplanar` command (and `python -m app.cli`): :func:`main`, then the process ends
+    without a second chance to be interrupted. After an interruption (exit code 130, its one
+    line printed, nothing half-written) it ends at once, so that no library's clean-up at
+    exit prints a traceback of its own (llvmlite's did); after a finished command a signal
+    no longer kills it while Python shuts down (the outputs are complete by then)."""
+    code = main()
+    if code == 130:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    return code
+
+
 if __name__ == "__main__":  # `python -m app.cli`
-    sys.exit(main())
+    sys.exit(entry())

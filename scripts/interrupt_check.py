@@ -51,8 +51,10 @@ class Trial:
 
     @property
     def in_interpreter_startup(self) -> bool:
-        """The signal came while Python itself started, before the project's code ran."""
-        return "init_import_site" in self.stderr and not self.files
+        """The signal came while Python itself started, before the project's code ran: its
+        own fatal error, or killed by the signal before any handler existed (no output)."""
+        killed_at_once = self.returncode < 0 and not self.stderr.strip() and self.at_s < 0.1
+        return not self.files and ("init_import_site" in self.stderr or killed_at_once)
 
     @property
     def problem(self) -> str:

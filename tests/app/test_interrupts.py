@@ -32,3 +32,19 @@ def test_a_signal_while_the_command_line_loads_is_one_line(tmp_path: pathlib.Pat
 def test_start_runs_the_command_as_a_user_would(tmp_path: pathlib.Path) -> None:
     process = start(["--scene", "mc-a", "--keyframes", "2"], tmp_path / "out")
     assert process.wait(timeout=300) == 0
+
+
+def test_an_interrupt_wrapped_by_compiled_code_is_an_interruption(monkeypatch, capsys) -> None:
+    """numba's dispatcher turned a Ctrl-C into "SystemError: ... returned a result with an
+    exception set" (a traceback, exit 1)."""
+    from app import cli, run_command
+
+    def interrupted(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher(<function landmark_rows>) returned a result with an exception set") from None
+
+    monkeypatch.setattr(run_command, "run", interrupted)
+    assert cli.main(["run", "--scene", "mc-a", "--variant", "P-wo", "--out", "unused"]) == 130
+    assert capsys.readouterr().err == "interrupted\n"

@@ -5,12 +5,17 @@ copied and broken in one to three ways drawn by hypothesis: CSV rows truncated, 
 NaN/inf, unsorted, duplicated, deleted or with the wrong number of columns; YAML keys
 missing, extra, repeated or with bad values, files truncated or not YAML; images of zero
 bytes, text, truncated, of the wrong size or depth, in colour, JPEG under a .png name, or
-absent; folders and files removed. The run (stereo or VIO) must exit 0 or 2 with one
-`error:` line, never a traceback, and leave complete files or none.
+absent; folders and files removed; and as a careless user breaks a folder without breaking
+its syntax (issue 29): an image that is a FIFO or a folder, an image named by an absolute
+path or one climbing out with `..`, cam0 and cam1 swapped, cam1 one frame late, `T_BS` in
+millimetres, a tiny focal length, a principal point off the image, a huge k1, ground truth
+an hour off or in millimetres, the IMU in g or in deg/s. The run (stereo or VIO) must exit
+0 or 2 with one `error:` line, never a traceback or a hang, and leave complete files or none.
 """
 
 from __future__ import annotations
 
+import os
 import pathlib
 import shutil
 
@@ -60,13 +65,16 @@ yaml_mutation = st.tuples(
 image_mutation = st.tuples(
     st.just("image"),
     st.sampled_from(IMAGE_DIRS),
-    st.sampled_from(("zero", "text", "truncate", "resize", "colour", "depth16", "jpeg", "delete", "tiny")),
+    st.sampled_from(("zero", "text", "truncate", "resize", "colour", "depth16", "jpeg", "delete", "tiny", "fifo", "folder")),
     st.integers(0, 10_000),
     st.integers(0, 20),
     st.just(""),
 )
 remove_mutation = st.tuples(st.just("remove"), st.sampled_from(REMOVABLE), st.just(""), st.just(0), st.just(0), st.just(""))
-mutations = st.lists(csv_mutation | yaml_mutation | image_mutation | remove_mutation, min_size=1, max_size=3)
+#: Whole-folder mistakes that keep every file well formed (issue 29's careless user).
+CARELESS = ("outside_absolute", "outside_climbing", "swap_cameras", "cam1_late", "tbs_mm", "focal_tiny", "pp_outside", "k1_huge", "truth_hour", "truth_mm", "imu_g", "imu_deg")
+careless_mutation = st.tuples(st.just("careless"), st.sampled_from(CARELESS), st.just(""), st.integers(0, 10_000), st.just(0), st.just(""))
+mutations = st.lists(csv_mutation | yaml_mutation | image_mutation | remove_mutation | careless_mutation, min_size=1, max_size=3)
 
 
 def _mutate_csv(path: pathlib.Path, op: str, i: int, j: int, text: str) -> None:
@@ -139,7 +147,7 @@ def _mutate_yaml(path: pathlib.Path, op: str, i: int, j: int, text: str) -> None
 
 
 def _mutate_image(folder: pathlib.Path, op: str, i: int, j: int) -> None:
-    images = sorted(folder.glob("*.png"))
+    images = sorted(p for p in folder.glob("*.png") if p.is_file())  # not one an earlier mutation made a FIFO or a folder
     if not images:
         return
     path = images[i % len(images)]
@@ -167,14 +175,98 @@ def _mutate_image(folder: pathlib.Path, op: str, i: int, j: int) -> None:
     elif op == "jpeg":
         ok, encoded = cv2.imencode(".jpg", image.astype(np.uint8))
         path.write_bytes(encoded.tobytes())
+    elif op == "fifo":
+        path.unlink()
+        os.mkfifo(path)
+    elif op == "folder":
+        path.unlink()
+        path.mkdir()
+
+
+def _rows(path: pathlib.Path) -> tuple[list[str], list[int]]:
+    """A CSV's lines and the indices of its data rows."""
+    lines = path.read_text().splitlines()
+    return lines, [k for k, line in enumerate(lines) if line and not line.startswith("#")]
+
+
+def _scale_columns(path: pathlib.Path, columns: tuple[int, ...], factor: float) -> None:
+    lines, rows = _rows(path)
+    for k in rows:
+        fields = lines[k].split(",")
+        for c in columns:
+            fields[c] = repr(float(fields[c]) * factor)
+        lines[k] = ",".join(fields)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _edit_yaml_list(path: pathlib.Path, key: str, edit) -> None:
+    """Replace the numbers of `key: [...]` (one line) by `edit(numbers)`."""
+    lines = path.read_text().splitlines()
+    k = next(k for k, line in enumerate(lines) if line.startswith(f"{key}:"))
+    numbers = [float(x) for x in lines[k].split("[")[1].split("]")[0].split(",")]
+    lines[k] = f"{key}: [{', '.join(repr(x) for x in edit(numbers))}]"
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _careless(root: pathlib.Path, op: str, i: int) -> None:
+    """A folder broken without breaking a file's syntax (module docstring)."""
+    mav0 = root / "mav0"
+    cam0, cam1 = mav0 / "cam0" / "data.csv", mav0 / "cam1" / "data.csv"
+    if not (cam0.is_file() and cam1.is_file()):
+        return
+    lines, rows = _rows(cam0)
+    if op in ("outside_absolute", "outside_climbing") and rows:
+        k = rows[i % len(rows)]
+        stamp, name = lines[k].split(",")[:2]
+        lines[k] = f"{stamp},{(mav0 / 'cam0' / 'data' / name).resolve() if op == 'outside_absolute' else '../data/' + name}"
+        cam0.write_text("\n".join(lines) + "\n")
+    elif op == "swap_cameras":
+        (mav0 / "cam0" / "data").rename(mav0 / "data.tmp")
+        (mav0 / "cam1" / "data").rename(mav0 / "cam0" / "data")
+        (mav0 / "data.tmp").rename(mav0 / "cam1" / "data")
+    elif op == "cam1_late":
+        lines, rows = _rows(cam1)
+        names = [lines[k].split(",")[1] for k in rows]
+        for n, k in enumerate(rows):
+            lines[k] = f"{lines[k].split(',')[0]},{names[min(n + 1, len(names) - 1)]}"
+        cam1.write_text("\n".join(lines) + "\n")
+    elif op == "tbs_mm":
+        text = (mav0 / "cam1" / "sensor.yaml").read_text()
+        head, rest = text.split("data:", 1)
+        values = [float(x) for x in rest.split("[")[1].split("]")[0].split(",")]
+        for c in (3, 7, 11):
+            values[c] *= 1000.0
+        (mav0 / "cam1" / "sensor.yaml").write_text(head + "data: [" + ", ".join(repr(v) for v in values) + "]" + rest.split("]", 1)[1])
+    elif op in ("focal_tiny", "pp_outside", "k1_huge"):
+        yaml = mav0 / "cam0" / "sensor.yaml"
+        if op == "focal_tiny":
+            _edit_yaml_list(yaml, "intrinsics", lambda v: [10.0, 10.0, v[2], v[3]])
+        elif op == "pp_outside":
+            _edit_yaml_list(yaml, "intrinsics", lambda v: [v[0], v[1], 5000.0, v[3]])
+        else:
+            _edit_yaml_list(yaml, "distortion_coefficients", lambda v: [1e4, *v[1:]])
+    elif op in ("truth_hour", "truth_mm") and (mav0 / "state_groundtruth_estimate0" / "data.csv").is_file():
+        truth = mav0 / "state_groundtruth_estimate0" / "data.csv"
+        if op == "truth_mm":
+            _scale_columns(truth, (1, 2, 3), 1000.0)
+        else:
+            lines, rows = _rows(truth)
+            for k in rows:
+                stamp, rest = lines[k].split(",", 1)
+                lines[k] = f"{int(stamp) + 3600 * 10**9},{rest}"
+            truth.write_text("\n".join(lines) + "\n")
+    elif op in ("imu_g", "imu_deg") and (mav0 / "imu0" / "data.csv").is_file():
+        _scale_columns(mav0 / "imu0" / "data.csv", (4, 5, 6) if op == "imu_g" else (1, 2, 3), 1 / 9.81 if op == "imu_g" else 180 / np.pi)
 
 
 def _apply(root: pathlib.Path, mutation: tuple) -> None:
     kind, name, op, i, j, text = mutation
     target = root / name
-    if not target.exists():
+    if kind != "careless" and not target.exists():
         return
-    if kind == "csv":
+    if kind == "careless":
+        _careless(root, name, i)
+    elif kind == "csv":
         _mutate_csv(target, op, i, j, text)
     elif kind == "yaml":
         _mutate_yaml(target, op, i, j, text)
