@@ -463,11 +463,8 @@ def stereo_rectification(cam0: CameraCalibration, cam1: CameraCalibration) -> St
     pose `T_cam1_cam0 = T_body_cam1⁻¹ T_body_cam0` from their extrinsics: OpenCV's
     `stereoRectify` (alpha = 0: only valid pixels, zero disparity at infinity) for
     radial-tangential cameras, `cv2.fisheye.stereoRectify`'s rotations and the rectified camera
-    of the module docstring for equidistant ones. Both cameras must share one model, and
-    their intrinsics and baseline must be plausible (backend/data/plausibility.py)."""
-    from backend.data.plausibility import check_calibration
-
-    check_calibration(cam0, cam1)
+    of the module docstring for equidistant ones. Both cameras must share one model (the
+    readers check their intrinsics and baseline first: backend/data/plausibility.py)."""
     size = (cam0.width, cam0.height)
     if (cam1.width, cam1.height) != size:
         raise DatasetError(cam1.source, f"resolution {cam1.width}x{cam1.height} differs from cam0's {size[0]}x{size[1]}")

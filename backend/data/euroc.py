@@ -54,6 +54,7 @@ from backend.data.calibration import (
 )
 from backend.data.errors import DatasetError, not_regular, read_bytes, read_text
 from backend.data.motion import ImuData, ImuNoise
+from backend.data.plausibility import check_calibration
 from backend.geometry.camera import PinholeCamera
 
 CAMERA_COLUMNS = ("timestamp", "filename")
@@ -253,6 +254,7 @@ class EurocDataset(RectifiedRecording):
         self.cam0: CameraCalibration
         self.cam1: CameraCalibration
         self.cam0, self.cam1 = self._read_cameras(cam0_dir, cam1_dir)
+        check_calibration(self.cam0, self.cam1)  # implausible intrinsics or baseline: one line naming the file
         self.rectification: StereoRectification = stereo_rectification(self.cam0, self.cam1)
 
         stamps0, lines0, names0 = _read_camera_csv(cam0_dir)

@@ -70,6 +70,7 @@ from backend.data.calibration import (
 from backend.data.errors import DatasetError
 from backend.data.euroc import QUATERNION_NORM_TOLERANCE, GroundTruth, RectifiedRecording, SensorPoses
 from backend.data.motion import ImuData
+from backend.data.plausibility import check_calibration
 from backend.data.topics import TOPIC_NAMES
 
 DEFAULT_TOPICS = {"cam0": "/cam0/image_raw", "cam1": "/cam1/image_raw", "imu0": "/imu0"}
@@ -203,6 +204,7 @@ class RosBagDataset(RectifiedRecording):
         else:
             self.cam0 = read_camera_yaml(calib / "cam0" / "sensor.yaml")
             self.cam1 = read_camera_yaml(calib / "cam1" / "sensor.yaml")
+        check_calibration(self.cam0, self.cam1)  # implausible intrinsics or baseline: one line naming the file
         self.rectification: StereoRectification = stereo_rectification(self.cam0, self.cam1)
         self.warnings: tuple[str, ...] = ()
 
