@@ -15,8 +15,10 @@ def _value(handle: object) -> str | None:
     if isinstance(handle, viser.GuiMarkdownHandle):
         return handle.content if handle.visible else "(hidden)"
     if isinstance(handle, viser.GuiImageHandle):
+        if not handle.visible:
+            return "(hidden)"
         data = getattr(handle, "_data", None)
-        return f"image {hashlib.sha1(data).hexdigest()[:12]}" if isinstance(data, bytes) and handle.visible else "(hidden)" if not handle.visible else None
+        return f"image {hashlib.sha1(data).hexdigest()[:12]}" if isinstance(data, bytes) else None
     if isinstance(handle, viser.GuiTextHandle | viser.GuiDropdownHandle):
         return str(handle.value)
     return None

@@ -154,9 +154,6 @@ class RecordingWriter:
         with self._lock:
             self._comparisons[(keyframe, with_lines)] = (packed, variants)
 
-    def has_comparison(self, keyframe: int, *, with_lines: bool) -> bool:
-        return (keyframe, with_lines) in self._comparisons
-
     def manifest(self) -> dict[str, Any]:
         keyframes = [{"keyframe": e["keyframe"], "stepped": str(e["stepped"]), "chosen": str(e["chosen"]), "variants": [str(v) for v in e["variants"]]} for _, e in sorted(self._keyframes.items())]
         comparisons = [{"keyframe": k, "features": _features(lines), "variants": [str(v) for v in variants]} for (k, lines), (_, variants) in sorted(self._comparisons.items())]
@@ -218,6 +215,7 @@ class Recording:
     def __init__(self, path: pathlib.Path, archive: zipfile.ZipFile, manifest: dict[str, Any], keyframes: list[RecordedKeyframe], comparisons: dict[tuple[int, bool], tuple[Variant, ...]]) -> None:
         self.path = path
         self._zip = archive
+        self._names = frozenset(archive.namelist())  # listed once: a long recording holds thousands
         self.manifest = manifest
         self.source: str = str(manifest.get("source", "?"))
         self.keyframes = keyframes
@@ -319,7 +317,7 @@ class Recording:
             with np.load(io.BytesIO(self._zip.read(f"{stem}.npz")), allow_pickle=False) as npz:
                 arrays = {name: npz[name] for name in npz.files}
             image = f"{stem}.jpg"
-            blobs = {"image.jpeg": self._zip.read(image)} if image in self._zip.namelist() else {}
+            blobs = {"image.jpeg": self._zip.read(image)} if image in self._names else {}
             return decode(Encoded(tree=tree, arrays=arrays, blobs=blobs))
         except (CodecError, KeyError, ValueError, OSError, zipfile.BadZipFile, zlib.error) as e:
             raise RecordingError(f"{self.path}: {stem}: cannot be read back ({type(e).__name__}: {e})") from None
