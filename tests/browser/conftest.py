@@ -91,10 +91,15 @@ def debugger() -> Iterator[object]:
     d.stop()
 
 
-def open_page(browser, debugger, *, width: int = 1400, height: int = 900):
-    page = browser.new_page(viewport={"width": width, "height": height}, accept_downloads=True)
+def open_page(browser, debugger, *, width: int = 1400, height: int = 900, pixel_ratio: float = 1.0):
+    """The debugger's page in a `width`×`height` CSS px window on a display of
+    `pixel_ratio`, rendered at that ratio throughout: viser's `fixedDpr` turns off its
+    adaptive resolution, which lowers the 3D view's device pixels by up to a quarter
+    whenever software rendering is slow (a busy CI machine), and the debugger sizes
+    windows from them."""
+    page = browser.new_page(viewport={"width": width, "height": height}, device_scale_factor=pixel_ratio, accept_downloads=True)
     page.set_default_timeout(TIMEOUT_MS)
-    page.goto(f"http://127.0.0.1:{debugger.port}/")
+    page.goto(f"http://127.0.0.1:{debugger.port}/?fixedDpr={pixel_ratio:g}")
     page.get_by_role("button", name="Step").wait_for()
     return page
 

@@ -97,3 +97,30 @@ def test_the_plots_tab_shows_the_plots_with_plane_changes_and_log_costs(browser,
         page.close()
     finally:
         debugger.stop()
+
+
+def test_on_a_high_density_display_the_large_view_fills_the_3d_view_and_no_more(browser) -> None:
+    """A Retina laptop's window (1440×900 CSS px at pixel ratio 2): the browser reports the
+    3D view in device pixels, twice its CSS size; the large view must still fit between
+    the panels (it covered the control panel and the status line, 952 px wide over a
+    492 px view)."""
+    debugger = start_served("--scene", "room", "--duration", "6")
+    try:
+        page = open_page(browser, debugger, width=1440, height=900, pixel_ratio=2)
+        page.get_by_role("button", name="Step").click()
+        wait_shown(page, "0 (PL-w)")
+        page.get_by_role("tab", name="Hessian").click()
+        page.get_by_role("button", name="Open the Hessians large").click()
+        close = page.get_by_role("button", name="Close")
+        close.wait_for()
+        page.wait_for_timeout(500)  # the floating window takes its size
+        floating = _outer_panel(close).bounding_box()
+        controls = _outer_panel(page.get_by_role("button", name="Step")).bounding_box()
+        side = _outer_panel(page.get_by_role("button", name="Open the Hessians large")).bounding_box()
+        view = page.locator("canvas").first.bounding_box()
+        assert not _overlap(floating, controls), (floating, controls)
+        assert not _overlap(floating, side), (floating, side)
+        assert floating["width"] >= 0.9 * (view["width"] - 24), (floating, view)
+        page.close()
+    finally:
+        debugger.stop()

@@ -61,15 +61,28 @@ class Tab(Protocol):
 LARGE_VIEW_GAP_PX = 12
 #: The large view's size where the browser has not said how large its 3D view is (CSS px).
 LARGE_VIEW_FALLBACK_PX = (600, 700)
+#: A 3D view taller than this in device pixels is taken to be on a high-density display
+#: (devicePixelRatio 2, as a Retina laptop's): browser windows are rarely taller than
+#: ~1300 CSS px, and a Retina laptop's 3D view is 1600-1900 device px tall.
+HIGH_DENSITY_CANVAS_PX = 1350
 
 
 def large_view_box(client: viser.ClientHandle) -> tuple[int, int]:
     """Width and height (CSS pixels) of a floating window that fills the client's 3D view,
     the area between the docked side panel and the control panel, less a gap all round:
-    it covers neither panel, nor the status line at the top of the controls."""
+    it covers neither panel, nor the status line at the top of the controls.
+
+    The browser reports its 3D view in device pixels (viser's camera message: the WebGL
+    canvas), which are CSS pixels times the page's pixel ratio; viser lowers that ratio to
+    0.75-0.875 of the display's while rendering is slow, which only makes the window
+    smaller. The display's own ratio is not reported: a view taller than
+    :data:`HIGH_DENSITY_CANVAS_PX` is read as ratio 2, any other as 1, so on a display
+    scaled by 125-150 % the window reaches past the 3D view by that much (drag its edge)."""
     width, height = int(client.camera.image_width), int(client.camera.image_height)
     if width <= 0 or height <= 0:
         return LARGE_VIEW_FALLBACK_PX
+    if height > HIGH_DENSITY_CANVAS_PX:
+        width, height = width // 2, height // 2
     return max(width - 2 * LARGE_VIEW_GAP_PX, 200), max(height - 2 * LARGE_VIEW_GAP_PX, 200)
 
 
