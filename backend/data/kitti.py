@@ -42,6 +42,7 @@ from backend.data.calibration import MAX_RESOLUTION_PX
 from backend.data.errors import DatasetError, read_bytes, read_text
 from backend.data.euroc import _decode_quietly
 from backend.data.motion import ImuData, ImuNoise
+from backend.data.plausibility import check_rectified_camera
 from backend.geometry.camera import PinholeCamera
 
 MATRIX_KEYS = ("P0", "P1", "P2", "P3", "Tr")  # the calib.txt entries read (3x4 each); others are ignored
@@ -183,7 +184,8 @@ def read_calib(path: pathlib.Path) -> dict[str, np.ndarray]:
 def camera_from_projections(path: pathlib.Path, projections: dict[str, np.ndarray], *, width: int, height: int) -> PinholeCamera:
     """The rectified left camera: P0's `fx, fy, cx, cy` (pixels) at `width` x `height`, and
     the baseline `-P1[0,3] / P1[0,0]` (metres). A degenerate camera (a focal length not
-    above 0, the right camera not to the left's right) is a DatasetError naming `path`."""
+    above 0, the right camera not to the left's right) or an implausible one
+    (backend/data/plausibility.py) is a DatasetError naming `path`."""
     P0, P1 = projections["P0"], projections["P1"]
     fx, fy, cx, cy = float(P0[0, 0]), float(P0[1, 1]), float(P0[0, 2]), float(P0[1, 2])
     if not (fx > 0.0 and fy > 0.0 and P1[0, 0] > 0.0):
@@ -191,7 +193,9 @@ def camera_from_projections(path: pathlib.Path, projections: dict[str, np.ndarra
     baseline = float(-P1[0, 3] / P1[0, 0])
     if not baseline > 0.0:
         raise DatasetError(path, f"P1 gives a baseline of {baseline + 0.0:g} m (-P1[0,3] / P1[0,0]); expected the right camera to the left's right (P1[0,3] < 0)")
-    return PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, baseline=baseline)
+    camera = PinholeCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, baseline=baseline)
+    check_rectified_camera(camera, where=path)  # a focal length, principal point or baseline no camera has
+    return camera
 
 
 def seconds_to_ns(text: str) -> int:

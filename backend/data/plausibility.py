@@ -28,12 +28,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pathlib
 from typing import Any
 
 import numpy as np
 
 from backend.data.calibration import CameraCalibration, CameraModel
 from backend.data.errors import DatasetError
+from backend.geometry.camera import PinholeCamera
 
 #: Widest horizontal field of view of a pinhole (radial-tangential) lens, and of a fisheye.
 MAX_FOV_PINHOLE_DEG = 170.0
@@ -67,17 +69,34 @@ def check_calibration(cam0: CameraCalibration, cam1: CameraCalibration) -> None:
         raise DatasetError(cam1.source or "cam1", f"stereo baseline {baseline:.4g} m from the cameras' T_BS, outside [{MIN_BASELINE_M:g}, {MAX_BASELINE_M:g}] m{hint}")
 
 
+def check_rectified_camera(camera: PinholeCamera, *, where: pathlib.Path | str) -> None:
+    """DatasetError (naming `where`, the calibration file) for a rectified stereo camera (as
+    KITTI's calib.txt gives it: P0's intrinsics, the baseline from P1) that no camera has:
+    the same field-of-view, principal-point and baseline limits as :func:`check_calibration`."""
+    _check_pinhole(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, widest=MAX_FOV_PINHOLE_DEG, fisheye=False, where=where, names=("P0 fx", "P0 fy"))
+    if not MIN_BASELINE_M <= camera.baseline <= MAX_BASELINE_M:
+        hint = " (P1[0,3] in millimetres? -P1[0,3] is fx times the baseline in metres)" if camera.baseline > MAX_BASELINE_M else " (the same camera twice?)"
+        raise DatasetError(where, f"stereo baseline {camera.baseline:.4g} m (-P1[0,3] / P1[0,0]), outside [{MIN_BASELINE_M:g}, {MAX_BASELINE_M:g}] m{hint}")
+
+
 def _check_intrinsics(cam: CameraCalibration) -> None:
     where = cam.source or "the camera calibration"
-    widest = MAX_FOV_FISHEYE_DEG if cam.model is CameraModel.EQUIDISTANT else MAX_FOV_PINHOLE_DEG
-    for f, size, axis in ((cam.fx, cam.width, "fu"), (cam.fy, cam.height, "fv")):
-        fov = math.degrees(2.0 * math.atan2(0.5 * size, f)) if cam.model is not CameraModel.EQUIDISTANT else math.degrees(size / f)
-        if not MIN_FOV_DEG <= fov <= widest:
-            raise DatasetError(where, f"focal length {axis} = {f:g} px gives a {fov:.1f}° field of view over {size} px (expected {MIN_FOV_DEG:g}-{widest:g}°): intrinsics in another unit?")
-    if not (0.0 <= cam.cx <= cam.width and 0.0 <= cam.cy <= cam.height):
-        raise DatasetError(where, f"principal point ({cam.cx:g}, {cam.cy:g}) px lies outside the {cam.width}x{cam.height} image")
+    fisheye = cam.model is CameraModel.EQUIDISTANT
+    widest = MAX_FOV_FISHEYE_DEG if fisheye else MAX_FOV_PINHOLE_DEG
+    _check_pinhole(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, widest=widest, fisheye=fisheye, where=where, names=("fu", "fv"))
     if cam.model is CameraModel.RADIAL_TANGENTIAL:
         _check_radial(cam, where)
+
+
+def _check_pinhole(fx: float, fy: float, cx: float, cy: float, width: int, height: int, *, widest: float, fisheye: bool, where: pathlib.Path | str, names: tuple[str, str]) -> None:
+    """The field of view each focal length (px) gives over the image, and the principal
+    point (px) inside it."""
+    for f, size, axis in ((fx, width, names[0]), (fy, height, names[1])):
+        fov = math.degrees(size / f) if fisheye else math.degrees(2.0 * math.atan2(0.5 * size, f))
+        if not MIN_FOV_DEG <= fov <= widest:
+            raise DatasetError(where, f"focal length {axis} = {f:g} px gives a {fov:.1f}° field of view over {size} px (expected {MIN_FOV_DEG:g}-{widest:g}°): intrinsics in another unit?")
+    if not (0.0 <= cx <= width and 0.0 <= cy <= height):
+        raise DatasetError(where, f"principal point ({cx:g}, {cy:g}) px lies outside the {width}x{height} image")
 
 
 def _check_radial(cam: CameraCalibration, where: str) -> None:

@@ -35,7 +35,7 @@ TR = (
     "-9.999413164504e-01 -5.403984729748e-02 9.999738645903e-01 4.859485810390e-04 -7.206933692422e-03 -2.921968648686e-01"
 )
 TIMES = ("0.000000e+00", "1.036594e-01", "2.072438e-01", "3.109284e-01")
-WIDTH, HEIGHT = 24, 16
+WIDTH, HEIGHT = 1241, 376  # KITTI 00's image size: its calib.txt must fit the images
 
 
 def _pose(k: int) -> np.ndarray:
@@ -159,6 +159,17 @@ BAD = {
     "zero focal length": (lambda s: _replace_line(s / "calib.txt", 0, P0.replace("7.188560000000e+02", "0", 1)), "calib.txt", "degenerate camera"),
     "zero baseline": (lambda s: _replace_line(s / "calib.txt", 1, P1.replace("-3.861448000000e+02", "0")), "calib.txt", "baseline of 0 m"),
     "right camera on the left": (lambda s: _replace_line(s / "calib.txt", 1, P1.replace("-3.861448000000e+02", "3.861448000000e+02")), "calib.txt", "baseline of -0.537"),
+    "focal length in metres": (
+        lambda s: _replace_line(s / "calib.txt", 0, P0.replace("7.188560000000e+02", "7.188560000000e-03", 1)),
+        "calib.txt",
+        "P0 fx = 0.00718856 px gives a 180.0° field of view",
+    ),
+    "principal point off the image": (
+        lambda s: _replace_line(s / "calib.txt", 0, P0.replace("6.071928000000e+02", "6.071928000000e+03")),
+        "calib.txt",
+        "principal point (6071.93, 185.216) px lies outside the 1241x376 image",
+    ),
+    "baseline in millimetres": (lambda s: _replace_line(s / "calib.txt", 1, P1.replace("-3.861448000000e+02", "-3.861448000000e+05")), "calib.txt", "stereo baseline 537.2 m"),
     "times missing": (lambda s: (s / "times.txt").unlink(), "times.txt", "missing file"),
     "times fewer than images": (lambda s: _replace_line(s / "times.txt", 3, None), "times.txt", "3 times, but"),
     "times more than images": (lambda s: _replace_line(s / "times.txt", 3, "3.109284e-01\n4.2e-01"), "image_0/000004.png", "missing image of frame 4"),
