@@ -65,12 +65,13 @@ _default_unraisable = sys.unraisablehook
 
 def _unraisable(info: sys.UnraisableHookArgs) -> None:
     """A KeyboardInterrupt that C code swallowed (raised inside a callback from a library,
-    e.g. llvmlite's while numba compiles: "Exception ignored in ...", and the run went on)
-    is raised again in the main thread, where it ends the command in one line."""
+    e.g. llvmlite's while numba compiles, or in an object's finalizer: "Exception ignored
+    in ...", and the run went on) is raised again in the main thread, where it ends the
+    command in one line. The signal is sent again from a helper thread once this hook has
+    returned: raised inside the hook (interrupt_main when the hook runs on the main thread)
+    it would be swallowed as well, with a traceback and exit 0."""
     if isinstance(info.exc_value, KeyboardInterrupt):
-        import _thread
-
-        _thread.interrupt_main()
+        threading.Timer(0.01, os.kill, args=(os.getpid(), signal.SIGINT)).start()
         return
     _default_unraisable(info)
 

@@ -48,6 +48,8 @@ AXIS_OPTIONS = {
     "segmenter_model": ("FILE.onnx", "the learned segmenter's model, as run's --segmenter-model (default the shipped one)"),
 }
 OUTPUTS = ("results.csv", "results.json", "table.md", "ate_by_variant.png", "time_by_stage.png")
+#: Seconds an interrupted sweep waits for Ray's workers to end before it removes what they half wrote.
+STAGING_WAIT_S = 5.0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -105,6 +107,7 @@ def _print_row(row: dict[str, Any]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from app.errors import UsageError
+    from backend.common.atomic import remove_stale_staging
     from backend.sweep.runner import RayUnavailable, Runs, finished_row, ray_runs, ray_session, run_sweep, serial_runs
 
     _check_execution(args)
@@ -129,6 +132,8 @@ def run(args: argparse.Namespace) -> int:
     except RayUnavailable as e:
         raise UsageError(str(e)) from None
     except KeyboardInterrupt:
+        if out.is_dir():  # Ray's workers, ended with the cluster, leave their half-written runs
+            remove_stale_staging(out, wait_s=STAGING_WAIT_S)
         raise KeyboardInterrupt(f"the finished runs are in {out}; the same command resumes there") from None
     _write_results(out, outcome.rows)
     print(f"{len(specs)} runs: {outcome.ran} ran, {outcome.resumed} already finished, {outcome.failed} failed; wrote {out}/{', '.join(OUTPUTS)}")
@@ -146,12 +151,14 @@ def _prepare(out: pathlib.Path) -> None:
 
 
 def _write_results(out: pathlib.Path, rows: list[dict[str, Any]]) -> None:
-    """results.csv, results.json, table.md and the plots, each complete or not at all."""
-    from backend.common.atomic import write_text_atomic
+    """results.csv, results.json, table.md and the plots: written in a staging folder and
+    moved into `out` together (an interruption meanwhile leaves the older set or none)."""
+    from backend.common.atomic import staged_folder, write_text_atomic
     from backend.sweep.plots import write_plots
     from backend.sweep.results import write_results
     from backend.sweep.table import table_markdown
 
-    write_results(out, rows)
-    write_text_atomic(out / "table.md", table_markdown(rows))
-    write_plots(out, rows)
+    with staged_folder(out) as stage:
+        write_results(stage, rows)
+        write_text_atomic(stage / "table.md", table_markdown(rows))
+        write_plots(stage, rows)

@@ -16,6 +16,7 @@ import pathlib
 import shutil
 import signal
 import threading
+import time
 from collections.abc import Iterator
 
 PARTIAL_MARK = ".partial-"
@@ -73,6 +74,29 @@ def make_folder(path: pathlib.Path | str) -> None:
         except FileExistsError:
             if not level.is_dir():
                 raise
+
+
+def remove_stale_staging(folder: pathlib.Path, *, wait_s: float = 0.0) -> None:
+    """Remove the staging folders that processes no longer running (killed: SIGKILL, power
+    loss, a Ray worker ended with its cluster) left in `folder`, after waiting up to `wait_s`
+    seconds for their writers to end."""
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and any(_writer_alive(entry) for entry in folder.glob(f"{STAGING_PREFIX}*")):
+        time.sleep(0.1)
+    _remove_stale_staging(folder)
+
+
+def _writer_alive(entry: pathlib.Path) -> bool:
+    pid = entry.name[len(STAGING_PREFIX) :]
+    if not pid.isdigit() or int(pid) == os.getpid():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
 
 
 def _remove_stale_staging(folder: pathlib.Path) -> None:

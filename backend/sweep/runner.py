@@ -176,16 +176,63 @@ def ray_session(*, address: str | None = None, workers: int | None = None) -> It
         check_reachable(address)
         options["address"] = address
         where = f"the Ray cluster at {address}"
-    handlers = _signal_handlers()
     try:
-        ray.init(**options)
+        _init_whole(ray, options)
     except Exception as e:  # ConnectionError, RuntimeError, ValueError: Ray's reasons vary
         raise RayUnavailable(f"cannot start {where}: {reason(e)} (--serial runs without Ray)") from None
-    finally:
-        _restore(handlers)  # Ray's own SIGTERM handler would end the driver without the command's last line
     try:
         yield RayCluster(where=where, cpus=float(ray.cluster_resources().get("CPU", 0.0)))
     finally:
+        _shutdown_whole(ray)
+
+
+def _init_whole(ray: Any, options: dict[str, Any]) -> None:
+    """`ray.init(**options)` with SIGINT and SIGTERM held until it has returned, then raised
+    as KeyboardInterrupt after Ray is shut down again: interrupted half-way, Ray left its
+    processes running (its dashboard and runtime-env agents outlived the command). Ray's own
+    SIGTERM handler (it ends the driver at once, exit 15, no line) is kept out: Ray sets it
+    through `ray._private.utils.set_sigterm_handler`, which is a no-op while it starts."""
+    from backend.common.optional import interrupts_held
+
+    utils: Any = getattr(getattr(ray, "_private", None), "utils", None)
+    setter = getattr(utils, "set_sigterm_handler", None)
+    handlers = _signal_handlers()
+    try:
+        with interrupts_held():
+            if setter is not None:
+                utils.set_sigterm_handler = lambda handler: None
+            try:
+                ray.init(**options)
+            finally:
+                if setter is not None:
+                    utils.set_sigterm_handler = setter
+    except KeyboardInterrupt:
+        _shutdown_whole(ray)
+        raise
+    finally:
+        _restore(handlers)  # what the command set, whatever Ray set meanwhile
+
+
+def _shutdown_whole(ray: Any) -> None:
+    """`ray.shutdown()` with SIGINT and SIGTERM held until it has returned (interrupted, it
+    left Ray's processes running), then raised as KeyboardInterrupt. Ray's core worker, as it
+    goes, resets SIGTERM's action to the default (with SIGSEGV's, SIGABRT's ...): a `kill`
+    in the second Ray then spends ending its processes killed the command outright (exit
+    -15, no line, a worker's half-written run left). The holding handlers are put back as
+    soon as the core worker has gone, before Ray ends its processes
+    (`Node.kill_all_processes`), and the command's after."""
+    from backend.common.optional import interrupts_held
+
+    node = getattr(getattr(getattr(ray, "_private", None), "worker", None), "_global_node", None)
+    kill_all = getattr(node, "kill_all_processes", None)
+    with interrupts_held():
+        if node is not None and kill_all is not None:
+
+            def kill_with_handlers(*args: Any, **kwargs: Any) -> Any:
+                _restore(_signal_handlers())  # the holding handlers, as Python still knows them
+                return kill_all(*args, **kwargs)
+
+            node.kill_all_processes = kill_with_handlers
         ray.shutdown()
 
 
