@@ -1,0 +1,124 @@
+"""Two tabs on one debugger under load, for a bounded time (issue 29): one plays at the
+highest rate (and resumes Play whenever the other paused it) while the other scrubs,
+switches variants, toggles layers, opens every tab and changes the point size as fast as
+the page answers. The server keeps answering every action, stepping on, within its history
+caps, and both tabs end showing the same keyframe; nothing either page sends is refused
+(the conftest's check) and no step fails."""
+
+from __future__ import annotations
+
+import random
+import re
+import time
+
+from playwright.sync_api import expect
+
+from tests.browser.conftest import field, open_page, wait_shown
+
+LOAD_S = 20.0  # how long the second tab works while the first plays, at least
+MIN_ACTIONS = 20  # and how many actions it takes, at least
+ANSWER_MS = 30_000  # the longest any single action may wait for the page to show its effect
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/status") as f:  # the server runs in this process; the browser does not
+        return next(int(line.split()[1]) / 1024.0 for line in f if line.startswith("VmRSS:"))
+
+
+def _debugger():
+    from backend.pipeline.sim_engine import SimEngine, SimSettings
+    from tests.browser.conftest import _started, free_port
+    from viewer.app import Debugger
+    from viewer.settings import ViewerSettings
+
+    # Caps small enough to be reached within the load: 12 keyframes, 2 MiB of snapshots.
+    debugger = Debugger(SimEngine(SimSettings(sequence="a")), port=free_port(), settings=ViewerSettings(history=12, history_mb=2.0))
+    debugger.server.scene.configure_environment_map(hdri=None)
+    _started.append(debugger)
+    return debugger
+
+
+def _shown_keyframe(page) -> int:
+    return int(re.match(r"\d+", field(page, "Shown").input_value()).group())  # type: ignore[union-attr]
+
+
+def _answered(done, action: str) -> None:
+    """Wait until `done()` holds, at most ANSWER_MS."""
+    deadline = time.monotonic() + ANSWER_MS / 1000
+    while not done():
+        assert time.monotonic() < deadline, f"{action} was not answered in {ANSWER_MS} ms"
+        time.sleep(0.05)
+
+
+def test_two_tabs_under_load_stay_answered_bounded_and_in_sync(browser) -> None:
+    debugger = _debugger()
+    try:
+        player = open_page(browser, debugger)
+        worker = open_page(browser, debugger)
+        player.get_by_role("button", name="Step").click()
+        wait_shown(worker, "0 (PL-w)")
+        rss_start = _rss_mb()
+        statuses: list[str] = []
+        set_status = debugger._set_status
+        debugger._set_status = lambda text: (statuses.append(text), set_status(text))[1]  # a failed step says "**error** in ..."
+
+        rate = field(player, "Rate (Hz)")
+        rate.fill("30")
+        rate.press("Enter")
+        field(player, "Play").check()
+        rng = random.Random(0)
+        actions: dict[str, int] = {}
+        began = time.monotonic()
+        end = began + LOAD_S
+        while time.monotonic() < end or sum(actions.values()) < MIN_ACTIONS:
+            action = rng.choice(["scrub", "variant", "layer", "tab", "point size"])
+            actions[action] = actions.get(action, 0) + 1
+            if action == "scrub":
+                # As a user scrubs while the other tab plays: pause, then type the keyframe (typed
+                # while Play moves the slider, the box's text and Play's update mix: "139131").
+                field(worker, "Play").uncheck()
+                debugger.wait_idle(timeout=ANSWER_MS / 1000)
+                target = max(debugger.history.first_keyframe, debugger.history.newest_keyframe - rng.randint(1, 3))
+                slider = field(worker, "Keyframe")
+                slider.fill(str(target))
+                slider.press("Enter")
+                _answered(lambda target=target: _shown_keyframe(worker) == target, f"scrubbing to {target}")
+            elif action == "variant":
+                # At the newest keyframe the variant is computed and shown; scrubbed back, where
+                # it was not computed, the status line says so and the shown one stays.
+                name = rng.choice(["P-wo", "P-w", "PL-r", "PL-w"])
+                field(worker, "Variant").click()
+                worker.get_by_role("option", name=name, exact=True).click()
+                shown, refused = field(worker, "Shown"), worker.get_by_text(f"{name} was not computed at keyframe")
+                _answered(lambda shown=shown, refused=refused, name=name: shown.input_value().endswith(f"({name})") or refused.count() > 0, f"choosing {name}")
+            elif action == "layer":
+                box = field(worker, rng.choice(["Points", "Lines", "Planes", "Cameras"]))
+                box.set_checked(not box.is_checked())
+            elif action == "tab":
+                worker.get_by_role("tab", name=rng.choice(["Keyframe", "Hessian", "Variants", "Plots", "Report"])).click()
+            else:
+                size = field(worker, "Point size")
+                size.fill(f"{rng.uniform(0.5, 3.0):.1f}")
+                size.press("Enter")
+            play = field(player, "Play")
+            if not play.is_checked():  # the first tab's user plays on
+                play.check()
+
+        field(player, "Play").uncheck()
+        debugger.wait_idle(timeout=120)
+        stepped = debugger.session.keyframes
+        assert stepped >= 5, f"Play was starved under the load: {stepped} keyframes in {LOAD_S:.0f} s"  # mc-a steps ~10 per second alone
+        assert len(debugger.history) <= 12 and debugger.history.bytes <= 2 * 2**20, (len(debugger.history), debugger.history.bytes)
+
+        # After the load: the next step reaches both tabs, the same keyframe in each.
+        worker.get_by_role("button", name="Step").click()
+        expect(field(worker, "Shown")).to_have_value(re.compile(rf"^{stepped} \("), timeout=ANSWER_MS)
+        expect(field(player, "Shown")).to_have_value(field(worker, "Shown").input_value(), timeout=ANSWER_MS)
+        assert not [text for text in statuses if "error" in text], statuses
+        grown = _rss_mb() - rss_start
+        print(f"\ntwo tabs: {sum(actions.values())} actions in {time.monotonic() - began:.0f} s ({actions}); {stepped} keyframes played; server memory +{grown:.0f} MB")
+        assert grown < 400, f"the server grew by {grown:.0f} MB under a capped history"
+        player.close()
+        worker.close()
+    finally:
+        debugger.stop()
