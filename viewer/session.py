@@ -22,34 +22,15 @@ Everything here runs on the debugger's worker thread; it decides, the debugger s
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 from collections.abc import Callable
 
 from backend.optim.structure import HessianStructure
 from backend.optim.variant import VARIANTS, Variant
-from backend.pipeline.engine import EndOfSequence, Engine, EngineCheckpoint
+from backend.pipeline.engine import EndOfSequence, Engine, EngineCheckpoint, fork
 from backend.pipeline.recording import RecordingWriter
 from backend.pipeline.snapshot import FrameTrajectory, Snapshot
 from viewer.history import DEFAULT_MAX_BYTES, SnapshotHistory
-
-
-def second_engine(engine: Engine) -> Engine:
-    """A copy of `engine` in its state now that shares only its input and settings: the
-    parts it is composed of (`PARTS`, such as the image pipelines' core) are copied too and
-    refer to the copy, so stepping or re-optimizing one never moves the other (a shallow
-    copy shared the stereo pipeline's core: B's variant became A's)."""
-    copied = copy.copy(engine)
-    parts: tuple[str, ...] = getattr(engine, "PARTS", ())
-    for name in parts:
-        setattr(copied, name, copy.copy(getattr(engine, name)))
-    copied.restore(engine.checkpoint())
-    for name in parts:  # a part's reference to its engine (the core's plan) names the copy
-        part = getattr(copied, name)
-        for attr, value in list(vars(part).items()):
-            if value is engine:
-                setattr(part, attr, copied)
-    return copied
 
 
 @dataclasses.dataclass(frozen=True)
@@ -266,7 +247,7 @@ class Session:
         """B: a copy of the engine from its state now, with `variant` (its window re-optimized
         at once when there is a keyframe). The engine must be able to checkpoint."""
         self.cancel_ahead()
-        engine_b = second_engine(self.engine)
+        engine_b = fork(self.engine)
         engine_b.set_variant(variant)
         self.engine_b = engine_b
         self.history_b = {}

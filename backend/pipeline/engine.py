@@ -108,3 +108,22 @@ class EngineCheckpoint:
         for name, part in self.parts.items():
             getattr(engine, name).restore(part)
         return None if self.map is None else self.map.copy()
+
+
+def fork(engine: Any) -> Any:
+    """A second engine: a copy of `engine` in its state now that shares only its input and
+    settings (its `SHARED`), so that stepping, re-optimizing or changing the variant of one
+    never moves the other (the debugger's A/B run). The parts it is composed of (`PARTS`,
+    such as the image engines' `PipelineCore`) are copied too and refer to the copy: a
+    shallow copy shared the stereo pipeline's core, and B's variant became A's."""
+    copied = copy.copy(engine)
+    parts: tuple[str, ...] = getattr(engine, "PARTS", ())
+    for name in parts:
+        setattr(copied, name, copy.copy(getattr(engine, name)))
+    copied.restore(engine.checkpoint())
+    for name in parts:  # a part's reference to its engine (the core's plan) names the copy
+        part = getattr(copied, name)
+        for attr, value in list(vars(part).items()):
+            if value is engine:
+                setattr(part, attr, copied)
+    return copied
