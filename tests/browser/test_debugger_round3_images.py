@@ -102,8 +102,8 @@ def test_the_plots_tab_shows_the_plots_with_plane_changes_and_log_costs(browser,
 def test_on_a_high_density_display_the_large_view_fills_the_3d_view_and_no_more(browser) -> None:
     """A Retina laptop's window (1440×900 CSS px at pixel ratio 2): the browser reports the
     3D view in device pixels, twice its CSS size; the large view must still fit between
-    the panels (it covered the control panel and the status line, 952 px wide over a
-    492 px view)."""
+    the panels (it was sized from the device pixels: about twice the view's width, over
+    the control panel and the status line)."""
     debugger = start_served("--scene", "room", "--duration", "6")
     try:
         page = open_page(browser, debugger, width=1440, height=900, pixel_ratio=2)
