@@ -81,17 +81,26 @@ def remove_stale_staging(folder: pathlib.Path, *, wait_s: float = 0.0) -> None:
     loss, a Ray worker ended with its cluster) left in `folder`, after waiting up to `wait_s`
     seconds for their writers to end."""
     deadline = time.monotonic() + wait_s
-    while time.monotonic() < deadline and any(_writer_alive(entry) for entry in folder.glob(f"{STAGING_PREFIX}*")):
+    while time.monotonic() < deadline and any(_running(pid) for pid in _writers(folder).values()):
         time.sleep(0.1)
     _remove_stale_staging(folder)
 
 
-def _writer_alive(entry: pathlib.Path) -> bool:
-    pid = entry.name[len(STAGING_PREFIX) :]
-    if not pid.isdigit() or int(pid) == os.getpid():
-        return False
+def _writers(folder: pathlib.Path) -> dict[pathlib.Path, int]:
+    """The staging folders in `folder` of other processes, with each writer's pid (from the
+    folder's name)."""
+    found = {}
+    for entry in folder.glob(f"{STAGING_PREFIX}*"):
+        pid = entry.name[len(STAGING_PREFIX) :]
+        if pid.isdigit() and int(pid) != os.getpid():
+            found[entry] = int(pid)
+    return found
+
+
+def _running(pid: int) -> bool:
+    """Whether process `pid` runs (or cannot be told: then it is left alone)."""
     try:
-        os.kill(int(pid), 0)
+        os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except OSError:
@@ -101,18 +110,9 @@ def _writer_alive(entry: pathlib.Path) -> bool:
 
 def _remove_stale_staging(folder: pathlib.Path) -> None:
     """Staging folders a killed process (SIGKILL, power loss) left in `folder`."""
-    for entry in folder.glob(f"{STAGING_PREFIX}*"):
-        pid = entry.name[len(STAGING_PREFIX) :]
-        if not pid.isdigit() or int(pid) == os.getpid():
-            continue
-        try:
-            os.kill(int(pid), 0)
-            continue  # its writer still runs
-        except ProcessLookupError:
-            pass
-        except OSError:
-            continue
-        shutil.rmtree(entry, ignore_errors=True)
+    for entry, pid in _writers(folder).items():
+        if not _running(pid):
+            shutil.rmtree(entry, ignore_errors=True)
 
 
 @contextlib.contextmanager

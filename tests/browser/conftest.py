@@ -60,13 +60,14 @@ def nothing_refused(request: pytest.FixtureRequest) -> Iterator[None]:
     _started.clear()
 
 
-def start_debugger(*, sequence: str = "a", **engine_options: object):
-    """A debugger on a free port over the Monte-Carlo engine, with the HDRI off (it stalls
-    software rendering)."""
+def start_debugger(*, sequence: str = "a", settings: object = None, **engine_options: object):
+    """A debugger on a free port over the Monte-Carlo engine (with viewer `settings`, a
+    ViewerSettings, where given), with the HDRI off (it stalls software rendering)."""
     from backend.pipeline.sim_engine import SimEngine, SimSettings
     from viewer.app import Debugger
+    from viewer.settings import ViewerSettings
 
-    debugger = Debugger(SimEngine(SimSettings(sequence=sequence, **engine_options)), port=free_port())
+    debugger = Debugger(SimEngine(SimSettings(sequence=sequence, **engine_options)), port=free_port(), settings=settings or ViewerSettings())
     debugger.server.scene.configure_environment_map(hdri=None)
     _started.append(debugger)
     return debugger

@@ -13,7 +13,7 @@ import time
 
 from playwright.sync_api import expect
 
-from tests.browser.conftest import field, open_page, wait_shown
+from tests.browser.conftest import field, open_page, start_debugger, wait_shown
 
 LOAD_S = 20.0  # how long the second tab works while the first plays, at least
 MIN_ACTIONS = 20  # and how many actions it takes, at least
@@ -26,16 +26,10 @@ def _rss_mb() -> float:
 
 
 def _debugger():
-    from backend.pipeline.sim_engine import SimEngine, SimSettings
-    from tests.browser.conftest import _started, free_port
-    from viewer.app import Debugger
     from viewer.settings import ViewerSettings
 
     # Caps small enough to be reached within the load: 12 keyframes, 2 MiB of snapshots.
-    debugger = Debugger(SimEngine(SimSettings(sequence="a")), port=free_port(), settings=ViewerSettings(history=12, history_mb=2.0))
-    debugger.server.scene.configure_environment_map(hdri=None)
-    _started.append(debugger)
-    return debugger
+    return start_debugger(settings=ViewerSettings(history=12, history_mb=2.0))
 
 
 def _shown_keyframe(page) -> int:
