@@ -1,6 +1,8 @@
 """The debugger on the VIO pipeline (`coplanar serve --mode vio`), as a user drives it: it
 steps, switches the variant and shows the IMU state (status, velocity, biases, gravity) in
-the report; the README's picture of the VIO mode."""
+the report; the status line says what the start waits for and, once initialized, how well
+it knows the scale (issue 28's item 12: it gave no hint before); the README's picture of
+the VIO mode."""
 
 from __future__ import annotations
 
@@ -18,6 +20,11 @@ def test_vio_debugger_steps_switches_variant_and_shows_the_imu_state(browser, tm
         for k in range(10):  # through the initialization (keyframe 7 at 1.3 s)
             page.get_by_role("button", name="Step").click()
             wait_shown(page, f"{k} (PL-w)")
+            if k == 0:  # before the start: what it waits for
+                page.get_by_text(re.compile(r"^VIO not initialized yet: ")).first.wait_for()
+        # after it: when, how well the alignment knew the scale (1σ), and the error against the truth
+        note = page.get_by_text(re.compile(r"initialized at keyframe \d+ \([\d.]+ s of motion\), the alignment's scale known to ±\d+ % \(1σ\)"))
+        note.filter(has_text=re.compile(r"after the joint solve -?[\d.]+ % against the truth")).first.wait_for()
         snapshot = debugger.history[-1]
         assert snapshot.imu is not None and snapshot.imu.initialized
         page.get_by_role("tab", name="Report").click()
