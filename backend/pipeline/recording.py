@@ -235,6 +235,10 @@ class Recording:
         except OSError as e:
             raise RecordingError(f"{path}: cannot read it: {e.strerror or e}") from None
         try:
+            if min((info.header_offset for info in archive.infolist()), default=0) != 0:
+                # The `.npz` entries are zip archives stored whole: cut short inside or just
+                # after one, the file's last directory is that entry's, which starts past byte 0.
+                raise RecordingError(f"{path}: truncated or damaged (its last zip directory is an entry's, not the file's)")
             return Recording._checked(path, archive)
         except BaseException:
             archive.close()
