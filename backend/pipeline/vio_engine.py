@@ -255,10 +255,17 @@ class VioEngine(CoreEngine):
             self.core.messages.append(f"frame {i}: {len(ids)} features followed from the first keyframe (fewer than {s.init_restart_matches}); starting again from this frame")
             self._restart_flow = True
             return None
+        dt_s = (int(self.data_source.timestamps_ns[i]) - int(self.map.keyframe_stamp_ns[k0])) * 1e-9
+        if dt_s > s.init_max_pair_interval_s:
+            # Features followed for long drift, and the gyroscope's rotation (its bias not
+            # yet known) bounds the essential matrix's less and less: a slow creep then
+            # gave a pair with its translation ~90° wrong (vio_settings' docstring).
+            self.core.messages.append(f"frame {i}: no initial pair within {s.init_max_pair_interval_s:g} s of the first keyframe; starting again from this frame")
+            self._restart_flow = True
+            return None
         kp0 = self._kf_features[k0][0]
         uv0, uv1 = kp0.uv[ids], uv_prev
         R_01_imu = self._gyro_rotation(int(self.map.keyframe_stamp_ns[k0]), int(self.data_source.timestamps_ns[i]))
-        dt_s = (int(self.data_source.timestamps_ns[i]) - int(self.map.keyframe_stamp_ns[k0])) * 1e-9
         return two_view_start(cam, s, ids=ids, uv0=uv0, uv1=uv1, R_01_imu=R_01_imu, dt_s=dt_s, R_world_kf0=self.map.R_world_keyframe[k0], t_world_kf0=self.map.t_world_keyframe[k0], kp=kp, image=image)
 
     def _gyro_rotation(self, t0_ns: int, t1_ns: int) -> np.ndarray:

@@ -19,8 +19,9 @@ class VioSettings(StereoSettings):
     initialization, so that its keyframes come sooner); new landmarks need
     `epipolar_px` agreement and `min_parallax_deg` with one of the `triangulation_keyframes`
     previous keyframes (newest first); the start needs `init_parallax_px`
-    and `init_min_matches` (fewer than `init_restart_matches` followed features from the
-    first keyframe: it starts again from the frame), `init_rotation_free_parallax_px` after the best pure rotation
+    and `init_min_matches` (ORB-SLAM's monocular initializer asks for 100; fewer than
+    `init_restart_matches` followed features from the first keyframe, or no pair within
+    `init_max_pair_interval_s` of it: it starts again from the frame), `init_rotation_free_parallax_px` after the best pure rotation
     (`rotation_free_parallax_px`), and an essential matrix whose rotation agrees with the gyroscope's
     (`init_gyro_agreement_deg` + `init_gyro_bias_bound_rad_s` × interval); before the
     initialization, `flow_tracks` follows map points and candidate features frame to frame
@@ -68,8 +69,9 @@ class VioSettings(StereoSettings):
     init_max_keyframe_interval_s: float = 0.2
     init_gyro_agreement_deg: float = 1.0
     init_gyro_bias_bound_rad_s: float = 0.1
-    init_min_matches: int = 60
+    init_min_matches: int = 100
     init_restart_matches: int = 120
+    init_max_pair_interval_s: float = 2.0
     init_median_depth: float = 3.0
     init_keyframes: int = 8
     init_min_span_s: float = 1.0
