@@ -251,16 +251,19 @@ class VioEngine(CoreEngine):
             uv, ok = follow(image_prev, image, uv_prev, cam, R_prev_cur=self._R_flow)
             ids, uv_prev = ids[ok], uv[ok]
         self._flow = (ids, uv_prev, image)
-        if len(ids) < s.init_restart_matches:
-            self.core.messages.append(f"frame {i}: {len(ids)} features followed from the first keyframe (fewer than {s.init_restart_matches}); starting again from this frame")
-            self._restart_flow = True
-            return None
         dt_s = (int(self.data_source.timestamps_ns[i]) - int(self.map.keyframe_stamp_ns[k0])) * 1e-9
-        if dt_s > s.init_max_pair_interval_s:
-            # Features followed for long drift, and the gyroscope's rotation (its bias not
-            # yet known) bounds the essential matrix's less and less: a slow creep then
-            # gave a pair with its translation ~90° wrong (vio_settings' docstring).
-            self.core.messages.append(f"frame {i}: no initial pair within {s.init_max_pair_interval_s:g} s of the first keyframe; starting again from this frame")
+        # Too few features left to pair with; or followed for so long that they drift and the
+        # gyroscope's rotation (its bias not yet known) bounds the essential matrix's less and
+        # less: a slow creep gave pairs ~90° wrong (docs/results/vio.md, the start).
+        why = (
+            f"{len(ids)} features followed from the first keyframe (fewer than {s.init_restart_matches})"
+            if len(ids) < s.init_restart_matches
+            else f"no initial pair within {s.init_max_pair_interval_s:g} s of the first keyframe"
+            if dt_s > s.init_max_pair_interval_s
+            else ""
+        )
+        if why:
+            self.core.messages.append(f"frame {i}: {why}; starting again from this frame")
             self._restart_flow = True
             return None
         kp0 = self._kf_features[k0][0]
