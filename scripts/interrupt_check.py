@@ -34,6 +34,7 @@ import dataclasses
 import os
 import pathlib
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -72,9 +73,13 @@ class Trial:
     @property
     def in_interpreter_startup(self) -> bool:
         """The signal came while Python itself started, before the project's code ran: its
-        own fatal error, or killed by the signal before any handler existed (no output)."""
+        own fatal error, killed by the signal before any handler existed (no output), or a
+        KeyboardInterrupt whose traceback holds only Python's frozen modules (`python -m`
+        importing the package `app`, whose __init__ is empty, before app/cli.py runs)."""
         killed_at_once = self.returncode < 0 and not self.stderr.strip() and self.at_s < 0.1
-        return not self.files and ("init_import_site" in self.stderr or killed_at_once)
+        frames = re.findall(r'^\s*File "([^"]*)"', self.stderr, flags=re.MULTILINE)
+        in_runpy = bool(frames) and all(f.startswith("<frozen ") for f in frames) and self.stderr.strip().endswith("KeyboardInterrupt")
+        return not self.files and ("init_import_site" in self.stderr or killed_at_once or in_runpy)
 
     @property
     def problem(self) -> str:
