@@ -255,13 +255,11 @@ class VioEngine(CoreEngine):
         # Too few features left to pair with; or followed for so long that they drift and the
         # gyroscope's rotation (its bias not yet known) bounds the essential matrix's less and
         # less: a slow creep gave pairs ~90° wrong (docs/results/vio.md, the start).
-        why = (
-            f"{len(ids)} features followed from the first keyframe (fewer than {s.init_restart_matches})"
-            if len(ids) < s.init_restart_matches
-            else f"no initial pair within {s.init_max_pair_interval_s:g} s of the first keyframe"
-            if dt_s > s.init_max_pair_interval_s
-            else ""
-        )
+        why = ""
+        if len(ids) < s.init_restart_matches:
+            why = f"{len(ids)} features followed from the first keyframe (fewer than {s.init_restart_matches})"
+        elif dt_s > s.init_max_pair_interval_s:
+            why = f"no initial pair within {s.init_max_pair_interval_s:g} s of the first keyframe"
         if why:
             self.core.messages.append(f"frame {i}: {why}; starting again from this frame")
             self._restart_flow = True

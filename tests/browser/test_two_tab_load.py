@@ -80,8 +80,9 @@ def test_two_tabs_under_load_stay_answered_bounded_and_in_sync(browser) -> None:
             elif action == "variant":
                 # At the newest keyframe the variant is computed and shown; scrubbed back, where
                 # it was not computed, the status line says so and the shown one stays.
-                # The refusal is checked in the statuses the server set, not only on the page:
-                # with the other tab playing at 30 Hz the next step's status replaces it at once.
+                # The refusal is looked for in the statuses the server set rather than on the
+                # page: with the other tab playing at 30 Hz the next step's status replaces it
+                # at once.
                 name = rng.choice(["P-wo", "P-w", "PL-r", "PL-w"])
                 said_before = len(statuses)
                 field(worker, "Variant").click()
