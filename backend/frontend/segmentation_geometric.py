@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 
 import cv2
+import numba
 import numpy as np
 
 from backend.frontend.segmentation import NO_PLANE, PlaneMasks
@@ -218,42 +219,170 @@ def _grow_regions(disp: np.ndarray, *, settings: GeometricSegmenterSettings, cam
     labels = np.full((h, w), NO_PLANE, np.int16)
     tried = np.zeros((h // block, w // block), bool)  # seed blocks inside a rejected region
     models: list[np.ndarray] = []
+    flat_u, flat_v, flat_disp = u_grid.reshape(-1), v_grid.reshape(-1), disp0.reshape(-1)
+    # The flood tests pixels in the model's precision (float64 for a seed's model, float32 once
+    # refitted by _fit), as NumPy would on the float32 grids.
+    columns, rows = u_grid[0], v_grid[:, 0]
+    grids: dict[np.dtype, tuple[np.ndarray, np.ndarray, np.ndarray]] = {
+        np.dtype(np.float32): (disp0, columns, rows),
+        np.dtype(np.float64): (disp0.astype(np.float64), columns.astype(np.float64), rows.astype(np.float64)),
+    }
+    flat_labels = labels.reshape(-1)
+    in_region = np.zeros(h * w, bool)  # the current region's pixels (scratch, cleared per seed)
+    mark = np.zeros((h, w), np.int32)  # the flood's scratch (cleared by each flood)
+    stack = np.empty((2 * h * w, 2), np.int32)  # a pixel is pushed at most once from the row above and once from below
+    runs = np.empty((h * w, 3), np.int32)
+    component = np.empty(h * w, np.int64)
+    free = valid.copy()  # valid and in no region yet
     for r, c, model in _seed_blocks(disp, block=block, max_rms=s.seed_max_rms_px / s.scale):
         if len(models) >= s.max_planes:
             break
         seed = (slice(r * block, (r + 1) * block), slice(c * block, (c + 1) * block))
         if tried[r, c] or np.any(labels[seed] != NO_PLANE):
             continue
-        region = np.zeros((h, w), bool)
-        free = valid & (labels == NO_PLANE)
+        region = np.empty(0, np.int64)  # flat indices, in raster order
         for iteration in range(s.max_iterations):
             loose = iteration < s.loose_iterations
             threshold = residual * (s.loose_factor if loose else 1.0)
-            inliers = free & (np.abs(disp0 - (model[0] * u_grid + model[1] * v_grid + model[2])) < threshold)
-            count, components = cv2.connectedComponents(inliers.view(np.uint8), connectivity=4)
-            hits = np.bincount(components[seed].ravel(), minlength=count)
-            hits[0] = 0
-            if hits.max() == 0:
-                break
-            grown = components == int(hits.argmax())
-            changed = np.count_nonzero(grown ^ region)
+            if len(region) > LARGE_REGION * h * w:
+                # One pass over the whole image costs less than flooding a region this large.
+                inliers = free & (np.abs(disp0 - (model[0] * u_grid + model[1] * v_grid + model[2])) < threshold)
+                count, components = cv2.connectedComponents(inliers.view(np.uint8), connectivity=4)
+                hits = np.bincount(components[seed].ravel(), minlength=count)
+                hits[0] = 0
+                if hits.max() == 0:
+                    break
+                grown = np.flatnonzero(components.reshape(-1) == int(hits.argmax()))
+            else:
+                D, U, V = grids[model.dtype]
+                size = _flood(D, free, U, V, model, model.dtype.type(threshold), r * block, (r + 1) * block, c * block, (c + 1) * block, mark, stack, runs, component)
+                if size == 0:
+                    break
+                grown = component[:size].copy()
+            overlap = np.count_nonzero(in_region[grown])
+            changed = (len(grown) - overlap) + (len(region) - overlap)
+            in_region[region] = False
+            in_region[grown] = True
             region = grown
-            refit = _fit(u_grid[region], v_grid[region], disp0[region])
+            refit = _fit(flat_u[region], flat_v[region], flat_disp[region])
             if refit is None:
                 break
             model = refit
-            if not loose and changed < 0.005 * np.count_nonzero(region):
+            if not loose and changed < 0.005 * len(region):
                 break
-        if np.count_nonzero(region) < min_pixels or _curved(u_grid[region], v_grid[region], disp0[region], model, ratio=s.curved_rms_ratio):
-            big = region[: tried.shape[0] * block, : tried.shape[1] * block]
+        in_region[region] = False
+        if len(region) < min_pixels or _curved(flat_u[region], flat_v[region], flat_disp[region], model, ratio=s.curved_rms_ratio):
+            mask = np.zeros(h * w, bool)
+            mask[region] = True
+            big = mask.reshape(h, w)[: tried.shape[0] * block, : tried.shape[1] * block]
             tried |= big.reshape(tried.shape[0], block, tried.shape[1], block).any(axis=(1, 3))
             tried[r, c] = True
             continue
-        labels[region] = len(models)
+        flat_labels[region] = len(models)
+        free.reshape(-1)[region] = False
         models.append(model)
     models, labels = _merge_coplanar(models, labels, disp0=disp0, u_grid=u_grid, v_grid=v_grid, residual=residual, settings=s, camera=camera)
     _close_holes(labels, valid=valid, size=max(3, s.hole_close_px // s.scale | 1))
     return models, labels
+
+
+LARGE_REGION = 0.2  # share of the image above which a region grows by one pass over the image, not a flood
+
+
+@numba.njit(cache=True, nogil=True)
+def _flood(  # pragma: no cover - compiled
+    disp: np.ndarray,
+    free: np.ndarray,
+    columns: np.ndarray,
+    rows: np.ndarray,
+    model: np.ndarray,
+    threshold: float,
+    r0: int,
+    r1: int,
+    c0: int,
+    c1: int,
+    mark: np.ndarray,
+    stack: np.ndarray,
+    runs: np.ndarray,
+    out: np.ndarray,
+) -> int:
+    """The 4-connected component of the pixels that fit the affine disparity model, chosen
+    as `cv2.connectedComponents` over the whole image and the most hits in the seed block
+    would choose it, found by flooding (a scanline fill) only the components that touch
+    the block.
+
+    A pixel (row y, column x) fits when it is `free` and `|disp - (a·u + b·v + c)| <
+    threshold`, `model` = (a, b, c), `u` = `columns[x]`, `v` = `rows[y]`, evaluated in the
+    model's precision and order as NumPy evaluates it on the float32 grids: `disp` (h, w)
+    and `columns`, `rows` in the model's dtype, `threshold` too. The seed block is rows
+    `r0:r1`, columns `c0:c1`. The component with the most pixels in the block wins, a tie
+    going to the one whose first pixel in raster order comes first (the order of OpenCV's
+    labels). `mark` (h, w; zeros), `stack` (2·h·w, 2) and `runs` (h·w, 3) are scratch,
+    `mark` left zero. Writes the chosen component's flat indices in raster order to `out` (h·w)
+    and returns their number (0: no pixel of the block fits)."""
+    h, w = disp.shape
+    a, b, c = model[0], model[1], model[2]
+    au = a * columns  # a·u of every column, b·v of every row: the same products as NumPy's
+    bv = b * rows
+    n_runs = 0
+    label = 0
+    best_label, best_hits, best_first = 0, 0, h * w
+    best_box = (0, 0, 0, 0)
+    for y in range(r0, r1):
+        for x in range(c0, c1):
+            if not (mark[y, x] == 0 and free[y, x] and abs(disp[y, x] - (au[x] + bv[y] + c)) < threshold):
+                continue
+            label += 1
+            hits = 0
+            first = y * w + x
+            y0, y1, x0, x1 = y, y, x, x
+            stack[0, 0], stack[0, 1] = y, x
+            top = 1
+            while top > 0:
+                top -= 1
+                sy, sx = stack[top, 0], stack[top, 1]
+                if mark[sy, sx] != 0:
+                    continue
+                left, right = sx, sx
+                while left > 0 and (mark[sy, left - 1] == 0 and free[sy, left - 1] and abs(disp[sy, left - 1] - (au[left - 1] + bv[sy] + c)) < threshold):
+                    left -= 1
+                while right < w - 1 and (mark[sy, right + 1] == 0 and free[sy, right + 1] and abs(disp[sy, right + 1] - (au[right + 1] + bv[sy] + c)) < threshold):
+                    right += 1
+                for xx in range(left, right + 1):
+                    mark[sy, xx] = label
+                runs[n_runs, 0], runs[n_runs, 1], runs[n_runs, 2] = sy, left, right
+                n_runs += 1
+                if r0 <= sy < r1:
+                    hits += max(0, min(right + 1, c1) - max(left, c0))
+                first = min(first, sy * w + left)
+                y0, y1, x0, x1 = min(y0, sy), max(y1, sy), min(x0, left), max(x1, right)
+                for side in range(2):
+                    ny = sy - 1 if side == 0 else sy + 1
+                    if ny < 0 or ny >= h:
+                        continue
+                    xx = left
+                    while xx <= right:
+                        if mark[ny, xx] == 0 and free[ny, xx] and abs(disp[ny, xx] - (au[xx] + bv[ny] + c)) < threshold:
+                            stack[top, 0], stack[top, 1] = ny, xx
+                            top += 1
+                            xx += 1
+                            while xx <= right and (mark[ny, xx] == 0 and free[ny, xx] and abs(disp[ny, xx] - (au[xx] + bv[ny] + c)) < threshold):
+                                xx += 1
+                        xx += 1
+            if hits > best_hits or (hits == best_hits and first < best_first):
+                best_label, best_hits, best_first, best_box = label, hits, first, (y0, y1, x0, x1)
+    size = 0
+    if best_label > 0:
+        y0, y1, x0, x1 = best_box
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                if mark[y, x] == best_label:
+                    out[size] = y * w + x
+                    size += 1
+    for t in range(n_runs):
+        for x in range(runs[t, 1], runs[t, 2] + 1):
+            mark[runs[t, 0], x] = 0
+    return size
 
 
 def _merge_coplanar(

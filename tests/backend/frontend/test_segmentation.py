@@ -124,3 +124,53 @@ def test_geometric_segmenter_finds_floor_and_walls_on_euroc() -> None:
         # (measured 1-4°); a wall or panel: a large one within 30° of horizontal.
         assert np.any(large & (tilt_deg < 10.0)), (i, tilt_deg, masks.fractions())
         assert np.any(large & (tilt_deg > 60.0)), (i, tilt_deg, masks.fractions())
+
+
+def _reference_component(disp0, free, model, threshold, seed) -> tuple[np.ndarray, bool]:
+    """What the segmenter chose before the flood: the 4-connected component of the fitting
+    pixels over the whole image with the most pixels in the seed block (OpenCV's labels),
+    and whether another component had as many."""
+    h, w = disp0.shape
+    v_grid, u_grid = np.mgrid[0:h, 0:w].astype(np.float32)
+    inliers = free & (np.abs(disp0 - (model[0] * u_grid + model[1] * v_grid + model[2])) < threshold)
+    count, components = cv2.connectedComponents(inliers.view(np.uint8), connectivity=4)
+    hits = np.bincount(components[seed].ravel(), minlength=count)
+    hits[0] = 0
+    if hits.max() == 0:
+        return np.empty(0, np.int64), False
+    return np.flatnonzero(components.reshape(-1) == int(hits.argmax())), int(np.sum(hits == hits.max())) > 1
+
+
+def test_the_flood_grows_the_component_the_whole_image_pass_would() -> None:
+    """The segmenter floods only the components that touch a seed block instead of labelling
+    the whole image; it must choose the same pixels, in either precision of the model (seed
+    models are float64, refitted ones float32), ties between components included."""
+    from backend.frontend.segmentation_geometric import _flood
+
+    rng = np.random.default_rng(7)
+    h, w, block = 60, 90, 9  # an odd block: a wall through its middle column leaves halves of equal size
+    mark = np.zeros((h, w), np.int32)
+    stack, runs, out = np.empty((2 * h * w, 2), np.int32), np.empty((h * w, 3), np.int32), np.empty(h * w, np.int64)
+    columns, rows = np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)
+    ties = 0
+    for trial in range(300):
+        model64 = np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), rng.uniform(5, 30)])
+        model = model64.astype(np.float32) if trial % 2 else model64
+        v_grid, u_grid = np.mgrid[0:h, 0:w]
+        disp0 = (model64[0] * u_grid + model64[1] * v_grid + model64[2] + rng.normal(0, rng.uniform(0.05, 0.6), (h, w))).astype(np.float32)
+        free = rng.random((h, w)) > rng.uniform(0.0, 0.5)
+        r, c = rng.integers(0, h // block), rng.integers(0, w // block)
+        if trial % 5 == 0:  # a wall of misfits through the block, the rest fitting: two components, as many hits each
+            disp0 = (model64[0] * u_grid + model64[1] * v_grid + model64[2]).astype(np.float32)
+            free[:] = True
+            free[:, c * block + block // 2] = False
+        seed = (slice(r * block, (r + 1) * block), slice(c * block, (c + 1) * block))
+        threshold = 0.5 if trial % 3 else 1.0
+        expected, tie = _reference_component(disp0, free, model, threshold, seed)
+        dtype = model.dtype
+        block_rows, block_cols = (r * block, (r + 1) * block), (c * block, (c + 1) * block)
+        size = _flood(disp0.astype(dtype), free, columns.astype(dtype), rows.astype(dtype), model, dtype.type(threshold), *block_rows, *block_cols, mark, stack, runs, out)
+        np.testing.assert_array_equal(out[:size], expected, err_msg=f"trial {trial}")
+        assert not mark.any()  # the scratch is left clean for the next flood
+        ties += tie
+    assert ties >= 10, ties  # the tie-break was exercised
