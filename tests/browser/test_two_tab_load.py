@@ -36,11 +36,13 @@ def _shown_keyframe(page) -> int:
     return int(re.match(r"\d+", field(page, "Shown").input_value()).group())  # type: ignore[union-attr]
 
 
-def _answered(done, action: str) -> None:
-    """Wait until `done()` holds, at most ANSWER_MS."""
+def _answered(done, action: str, *, state=lambda: "") -> None:
+    """Wait until `done()` holds, at most ANSWER_MS; `state()` describes the pages and the
+    server for the failure message."""
     deadline = time.monotonic() + ANSWER_MS / 1000
     while not done():
-        assert time.monotonic() < deadline, f"{action} was not answered in {ANSWER_MS} ms"
+        if time.monotonic() >= deadline:
+            raise AssertionError(f"{action} was not answered in {ANSWER_MS} ms; {state()}")
         time.sleep(0.05)
 
 
@@ -85,6 +87,7 @@ def test_two_tabs_under_load_stay_answered_bounded_and_in_sync(browser) -> None:
                 # at once.
                 name = rng.choice(["P-wo", "P-w", "PL-r", "PL-w"])
                 said_before = len(statuses)
+                variant_before = field(worker, "Variant").input_value()
                 field(worker, "Variant").click()
                 worker.get_by_role("option", name=name, exact=True).click()
                 shown = field(worker, "Shown")
@@ -93,7 +96,14 @@ def test_two_tabs_under_load_stay_answered_bounded_and_in_sync(browser) -> None:
                     refused = any(f"{name} was not computed at keyframe" in text for text in statuses[said_before:])
                     return refused or shown.input_value().endswith(f"({name})")
 
-                _answered(answered, f"choosing {name}")
+                def state(shown=shown, said_before=said_before, before=variant_before) -> str:
+                    return (
+                        f"worker's Variant {before!r} before the choice, {field(worker, 'Variant').input_value()!r} now, Shown {shown.input_value()!r}; "
+                        f"engine variant {debugger.engine.variant}, shown snapshot {debugger._shown.keyframe if debugger._shown else None}; "
+                        f"statuses since the choice {statuses[said_before:][-3:]}"
+                    )
+
+                _answered(answered, f"choosing {name}", state=state)
             elif action == "layer":
                 box = field(worker, rng.choice(["Points", "Lines", "Planes", "Cameras"]))
                 box.set_checked(not box.is_checked())
