@@ -29,7 +29,7 @@ from backend.pipeline.replay_engine import NotRecorded
 from backend.pipeline.snapshot import FrameTrajectory, Snapshot
 from viewer import exports, panels
 from viewer.access import AccessSettings
-from viewer.commands import Command
+from viewer.commands import Command, unwrap
 from viewer.controls import AB_OFF, SEGMENTER_LABELS, ControlPanel, Segmented, set_value
 from viewer.guard import start_server
 from viewer.history import SnapshotHistory
@@ -42,6 +42,7 @@ from viewer.views import CameraViews
 from viewer.worker import Worker
 
 T = TypeVar("T")
+REFUSAL_NOTICE_S = 10.0  # how long a refusal stays in the notification of the tab that asked
 
 
 class Debugger:
@@ -143,10 +144,11 @@ class Debugger:
         elif command is Command.STEP:
             self._step()
         elif command is Command.VARIANT:
+            name, client = unwrap(arg)
             if self._scrubbed_back():
-                self._variant_at_shown(Variant.parse(arg))
+                self._variant_at_shown(Variant.parse(name), client=client)
             else:
-                self._switch_variant(Variant.parse(arg))
+                self._switch_variant(Variant.parse(name))
         elif command is Command.ALL_VARIANTS:
             self._all_variants()
         elif command is Command.AB:
@@ -225,10 +227,12 @@ class Debugger:
         """Whether the keyframe shown is older than the newest stepped."""
         return self._shown is not None and bool(self.history) and self._shown.keyframe != self.history.newest_keyframe
 
-    def _variant_at_shown(self, name: Variant) -> None:
+    def _variant_at_shown(self, name: Variant, *, client: viser.ClientHandle | None = None) -> None:
         """A variant chosen at an older keyframe: its kept result there, or why there is none
         (variants are re-optimized from the engine's state, which is at the newest keyframe);
-        the view stays at the keyframe shown, and the run goes on with the engine's variant."""
+        the view stays at the keyframe shown, and the run goes on with the engine's variant.
+        The refusal is in the status line and, for the tab that chose (`client`), in a
+        notification that stays after the next step has replaced the status line."""
         shown = self._shown
         assert shown is not None
         kept = self.history.variants_at(shown.keyframe).get(name)
@@ -238,10 +242,10 @@ class Debugger:
         with self.server.atomic():
             set_value(self.variant, shown.variant)
         newest = self.history.newest_keyframe
-        self._set_status(
-            f"**{name} was not computed at keyframe {shown.keyframe}**: variants are re-optimized from the engine's state, "
-            f"which is at the newest keyframe ({newest}); move the slider there to add {name}. Still showing {shown.variant}."
-        )
+        why = f"Variants are re-optimized from the engine's state, which is at the newest keyframe ({newest}); move the slider there to add {name}."
+        self._set_status(f"**{name} was not computed at keyframe {shown.keyframe}**: {why[0].lower()}{why[1:]} Still showing {shown.variant}.")
+        if client is not None:
+            client.add_notification(f"{name} was not computed at keyframe {shown.keyframe}", f"{why} Still showing {shown.variant}.", auto_close_seconds=REFUSAL_NOTICE_S, color="yellow")
 
     def _all_variants(self) -> None:
         """Every variant at the newest keyframe from the same state; the selected one stays."""

@@ -11,10 +11,12 @@ Commands submitted by a program (`coalesce=False`, tests and benchmarks) run one
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import queue
 import threading
 import time
+from typing import Any
 
 
 class Command(enum.StrEnum):
@@ -32,6 +34,21 @@ class Command(enum.StrEnum):
     WAKE = "wake"
     AHEAD = "ahead"  # the worker's own: compute the next step while idle (viewer/session.py)
     STOP = "stop"
+
+
+@dataclasses.dataclass(frozen=True)
+class FromClient:
+    """A command's argument with the browser tab that sent it (a `viser.ClientHandle`), so
+    that an answer meant for that tab's user, such as a refusal, reaches it even while
+    another tab's Play replaces the status line at every step."""
+
+    value: object
+    client: Any
+
+
+def unwrap(arg: Any) -> tuple[Any, Any]:
+    """A command's argument and the tab that sent it (None: a program or a shortcut)."""
+    return (arg.value, arg.client) if isinstance(arg, FromClient) else (arg, None)
 
 
 REDUNDANT_WHILE_WAITING = frozenset({Command.STEP, Command.ALL_VARIANTS, Command.WAKE})

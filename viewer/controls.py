@@ -18,7 +18,7 @@ from backend.frontend.segmenters import SegmenterKind, segmenter_kind
 from backend.optim.variant import VARIANT_NAMES, Variant
 from backend.pipeline.engine import Engine
 from backend.pipeline.snapshot import Snapshot
-from viewer.commands import Command
+from viewer.commands import Command, FromClient
 from viewer.dense import DenseLayer
 from viewer.displacement_layer import DISPLACEMENT_OFF, DisplacementLayer
 from viewer.history import SnapshotHistory
@@ -198,7 +198,7 @@ class ControlPanel:
 
     def _variant_chosen(self, event: viser.GuiEvent) -> None:
         if event.client is not None:
-            self.actions.enqueue(Command.VARIANT, Variant.parse(self.variant.value))
+            self.actions.enqueue(Command.VARIANT, FromClient(Variant.parse(self.variant.value), event.client))
 
     def _segmenter_chosen(self, event: viser.GuiEvent) -> None:
         if event.client is not None and self.segmenter is not None:

@@ -21,8 +21,8 @@ def _choose(page, label: str, option: str) -> None:
 
 def _status(page):
     """The status line's first paragraph (the input's name, then what is shown), or its
-    note on a variant that cannot be shown."""
-    return page.get_by_text(re.compile(r": keyframe \d+ · |was not computed at keyframe"))
+    note on a variant that cannot be shown (not the notification that repeats the note)."""
+    return page.get_by_text(re.compile(r": keyframe \d+ · |was not computed at keyframe")).and_(page.locator(":not(.mantine-Notification-title)"))
 
 
 def _scrub(page, keyframe: int) -> None:
@@ -49,6 +49,24 @@ def test_scrubbed_back_the_status_line_says_the_keyframe_shown(browser, debugger
     _scrub(page, 3)
     wait_shown(page, "3 (PL-w)")
     _status(page).filter(has_text=re.compile(r"keyframe 3 · PL-w · scrubbed back \(newest 5\)")).wait_for()
+    page.close()
+
+
+def test_a_refused_variant_stays_readable_after_the_next_step(browser, debugger) -> None:
+    """Scrubbed back, a variant that was not computed there is refused in the status line;
+    the next step (here a Step click, as another tab's Play does at every step) replaces the
+    status line, so the tab that chose also gets the refusal as a notification that stays."""
+    page = _stepped(browser, debugger, 4)
+    _scrub(page, 1)
+    wait_shown(page, "1 (PL-w)")
+    _choose(page, "Variant", "P-wo")  # not computed at keyframe 1
+    notice = page.locator(".mantine-Notification-root").filter(has_text="P-wo was not computed at keyframe 1")
+    notice.wait_for()
+    expect(notice).to_contain_text("Still showing PL-w")
+    page.get_by_role("button", name="Step").click()
+    wait_shown(page, "4 (PL-w)")
+    _status(page).filter(has_text=re.compile(r"keyframe 4 · PL-w$")).wait_for()  # the status line has moved on
+    expect(notice).to_be_visible()  # the refusal has not
     page.close()
 
 
