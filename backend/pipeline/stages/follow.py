@@ -15,6 +15,7 @@ import dataclasses
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from backend.frontend.flow import FlowTracks, follow
 from backend.frontend.points import Keypoints, best_matches
@@ -25,6 +26,21 @@ from backend.pipeline.stages.track import Tracked, TrackSettings, refine
 from backend.pipeline.tracking import merge_matches, pnp_ransac
 
 
+def _pairs_within(uv_a: np.ndarray, uv_b: np.ndarray, radius_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every pair (i, j) with `|uv_a[i] - uv_b[j]| <= radius_px` (pixels), in row-major
+    order, and its distance: the pairs and values of the dense distance matrix's
+    `np.nonzero(d <= radius_px)`, found by a k-d tree (candidates within a slightly larger
+    radius, then the same test on the same distance expression)."""
+    candidates = cKDTree(uv_b).query_ball_point(uv_a, r=radius_px * (1.0 + 1e-9) + 1e-12, return_sorted=True)
+    counts = np.fromiter((len(c) for c in candidates), np.int64, len(candidates))
+    rows = np.repeat(np.arange(len(uv_a)), counts)
+    cols = np.fromiter((j for c in candidates for j in c), np.int64, int(counts.sum()))
+    diff = uv_a[rows] - uv_b[cols]
+    d = np.sqrt(np.add.reduce(diff * diff, axis=1))  # as np.linalg.norm(..., axis=-1) computes it
+    keep = d <= radius_px
+    return rows[keep], cols[keep], d[keep]
+
+
 def with_followed_keypoints(kp: Keypoints, uv: np.ndarray, image: np.ndarray, *, radius_px: float = 2.0) -> tuple[Keypoints, np.ndarray]:
     """`kp` with a keypoint for each followed pixel `uv` (M, 2) that has no ORB keypoint
     within `radius_px` (its ORB descriptor computed there, at the finest level), and the
@@ -32,9 +48,8 @@ def with_followed_keypoints(kp: Keypoints, uv: np.ndarray, image: np.ndarray, *,
     border)."""
     index = np.full(len(uv), -1, np.int64)
     if len(kp.uv) and len(uv):
-        d = np.linalg.norm(uv[:, None, :] - kp.uv[None, :, :], axis=2)
-        rows, cols = np.nonzero(d <= radius_px)
-        index = best_matches(rows, cols, d[rows, cols], n_rows=len(uv), max_distance=radius_px, ratio=1.01)
+        rows, cols, d = _pairs_within(uv, kp.uv, radius_px)
+        index = best_matches(rows, cols, d, n_rows=len(uv), max_distance=radius_px, ratio=1.01)
     missing = np.flatnonzero(index < 0)
     if len(missing) == 0:
         return kp, index
