@@ -10,7 +10,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import signal
 import sys
-import threading
 
 
 def _interrupted_while_starting(_number: int, _frame: object) -> None:
@@ -21,13 +20,18 @@ def _interrupted_while_starting(_number: int, _frame: object) -> None:
 
 
 # Until `main` takes over (its own handlers, one line for every interruption), a signal while
-# the modules below load ends the command with one line instead of a traceback.
-_STARTING = threading.current_thread() is threading.main_thread()
-if _STARTING:
+# the modules below load ends the command with one line instead of a traceback. Set before
+# anything else is imported (threading included); outside the main thread (a program
+# importing this module from a thread) signals are not this module's to set.
+try:
     _sigint = signal.signal(signal.SIGINT, _interrupted_while_starting)
     _sigterm = signal.signal(signal.SIGTERM, _interrupted_while_starting)
+    _STARTING = True
+except ValueError:  # "signal only works in main thread"
+    _STARTING = False
 
 import argparse  # noqa: E402
+import threading  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 from typing import NoReturn  # noqa: E402
 
@@ -56,7 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+_signalled = threading.Event()  # a signal came during `main`: what fails after it was interrupted
+
+
 def _interrupt(_number: int, _frame: object) -> None:
+    _signalled.set()
     raise KeyboardInterrupt
 
 
@@ -77,13 +85,21 @@ def _unraisable(info: sys.UnraisableHookArgs) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    _signalled.clear()
     if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
         signal.signal(signal.SIGTERM, _interrupt)  # `kill PID` ends a command like Ctrl-C: no half-written files
+    on_main = threading.current_thread() is threading.main_thread()
+    previous_sigint = signal.getsignal(signal.SIGINT)
+    ours = on_main and previous_sigint is signal.default_int_handler  # Python's own: the same KeyboardInterrupt, remembered
+    if ours:
+        signal.signal(signal.SIGINT, _interrupt)
     previous_hook, sys.unraisablehook = sys.unraisablehook, _unraisable
     try:
         return _run(argv)
     finally:
         sys.unraisablehook = previous_hook
+        if ours:
+            signal.signal(signal.SIGINT, previous_sigint)
 
 
 def _run(argv: Sequence[str] | None) -> int:
@@ -99,7 +115,10 @@ def _run(argv: Sequence[str] | None) -> int:
         from backend.common.optional import MissingLibraryError
         from backend.data.errors import DatasetError
 
-        if _caused_by_interrupt(e):  # a Ctrl-C that compiled code wrapped (numba: "SystemError: ... returned a result with an exception set")
+        # A Ctrl-C that compiled code wrapped (numba: "SystemError: ... returned a result with
+        # an exception set") or turned into its own error (NumPy's C extensions, importing
+        # `datetime` when it came: "ImportError: ... PyCapsule_Import could not import").
+        if _caused_by_interrupt(e) or _signalled.is_set():
             say("interrupted")
             return 130
         if isinstance(e, (DatasetError, MissingLibraryError)):

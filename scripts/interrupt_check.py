@@ -55,6 +55,28 @@ RUN_FILES = ("trajectory.txt", "keyframes.txt", "groundtruth.txt", "metrics.json
 SWEEP_RUNS = ("room_P-wo_stereo_geometric_seed0_1s", "room_PL-w_stereo_geometric_seed0_1s")
 SWEEP_RESULTS = ("ate_by_variant.png", "results.csv", "results.json", "table.md", "time_by_stage.png")
 ORPHAN_GRACE_S = 10.0  # Ray's processes end within a few seconds of the driver
+CLI = ROOT / "app" / "cli.py"
+
+
+def _handler_line() -> int:
+    """The line of app/cli.py that sets its first signal handler: before it, nothing of the
+    project can answer a signal."""
+    return next(n for n, line in enumerate(CLI.read_text().splitlines(), start=1) if "signal.signal(signal.SIGINT, _interrupted_while_starting)" in line)
+
+
+def _before_any_handler(frame: tuple[str, int]) -> bool:
+    """A traceback frame of Python's start-up: its frozen modules, code outside the project
+    (the standard library, or an import hook a site-packages .pth installed, such as
+    setuptools' `_distutils_hack`), or app/cli.py above its first signal handler (importing
+    `signal` itself). Any other frame of the project means its handlers were in place."""
+    path, line = frame
+    if path.startswith("<frozen "):
+        return True
+    resolved = pathlib.Path(path).resolve()
+    if resolved == CLI.resolve():
+        return line < _handler_line()
+    in_project = resolved.is_relative_to(ROOT) and not resolved.is_relative_to(ROOT / ".venv")
+    return not in_project
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,14 +94,15 @@ class Trial:
 
     @property
     def in_interpreter_startup(self) -> bool:
-        """The signal came while Python itself started, before the project's code ran: its
-        own fatal error, killed by the signal before any handler existed (no output), or a
-        KeyboardInterrupt whose traceback holds only Python's frozen modules (`python -m`
-        importing the package `app`, whose __init__ is empty, before app/cli.py runs)."""
+        """The signal came while Python itself started, before the project's code could
+        answer it: Python's own fatal error, killed by the signal before any handler existed
+        (no output), or a KeyboardInterrupt whose traceback holds, of the project, only
+        app/cli.py above its first handler (`python -m` importing the package `app`, whose
+        __init__ is empty, then app/cli.py importing `signal`)."""
         killed_at_once = self.returncode < 0 and not self.stderr.strip() and self.at_s < 0.1
-        frames = re.findall(r'^\s*File "([^"]*)"', self.stderr, flags=re.MULTILINE)
-        in_runpy = bool(frames) and all(f.startswith("<frozen ") for f in frames) and self.stderr.strip().endswith("KeyboardInterrupt")
-        return not self.files and ("init_import_site" in self.stderr or killed_at_once or in_runpy)
+        frames = [(path, int(line)) for path, line in re.findall(r'^\s*File "([^"]*)", line (\d+)', self.stderr, flags=re.MULTILINE)]
+        before_handler = bool(frames) and all(_before_any_handler(f) for f in frames) and self.stderr.strip().endswith("KeyboardInterrupt")
+        return not self.files and ("init_import_site" in self.stderr or killed_at_once or before_handler)
 
     @property
     def problem(self) -> str:

@@ -61,6 +61,33 @@ def test_an_interrupt_wrapped_by_compiled_code_is_an_interruption(monkeypatch, c
     assert capsys.readouterr().err == "interrupted\n"
 
 
+def test_an_interrupt_turned_into_another_error_by_c_code_is_an_interruption(monkeypatch, capsys) -> None:
+    """A Ctrl-C while NumPy's C extensions import `datetime` became "ImportError: ...
+    PyCapsule_Import could not import module "datetime"", with nothing of the interrupt left
+    in its chain (a traceback, exit 1; CI, 2026-11-28). A real SIGINT here, and an error
+    raised after it with no link to it."""
+    import os
+    import signal
+    import time
+
+    from app import cli, run_command
+
+    def interrupted(args):
+        swallowed = False
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)  # the handler raises KeyboardInterrupt here
+        except KeyboardInterrupt:
+            swallowed = True
+        if swallowed:  # raised outside the except block: no __context__, as from C code
+            raise ImportError('PyCapsule_Import could not import module "datetime"')
+
+    monkeypatch.setattr(run_command, "run", interrupted)
+    assert cli.main(["run", "--scene", "mc-a", "--variant", "P-wo", "--out", "unused"]) == 130
+    assert capsys.readouterr().err == "interrupted\n"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # main() put Python's handler back
+
+
 def test_an_interrupt_swallowed_in_a_finalizer_on_the_main_thread_is_an_interruption(monkeypatch, capsys) -> None:
     """A SIGTERM that landed in an object's finalizer on the main thread ("Exception ignored
     in ...") was raised again inside the hook itself, swallowed a second time: a traceback
