@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import os
 import pathlib
 import random
@@ -58,6 +59,7 @@ ORPHAN_GRACE_S = 10.0  # Ray's processes end within a few seconds of the driver
 CLI = ROOT / "app" / "cli.py"
 
 
+@functools.cache
 def _handler_line() -> int:
     """The line of app/cli.py that sets its first signal handler: before it, nothing of the
     project can answer a signal."""

@@ -324,13 +324,17 @@ def _flood(  # pragma: no cover - compiled
     a, b, c = model[0], model[1], model[2]
     au = a * columns  # a·u of every column, b·v of every row: the same products as NumPy's
     bv = b * rows
+
+    def fits(y: int, x: int) -> bool:  # not yet flooded, free, and on the model
+        return mark[y, x] == 0 and free[y, x] and abs(disp[y, x] - (au[x] + bv[y] + c)) < threshold
+
     n_runs = 0
     label = 0
     best_label, best_hits, best_first = 0, 0, h * w
     best_box = (0, 0, 0, 0)
     for y in range(r0, r1):
         for x in range(c0, c1):
-            if not (mark[y, x] == 0 and free[y, x] and abs(disp[y, x] - (au[x] + bv[y] + c)) < threshold):
+            if not fits(y, x):
                 continue
             label += 1
             hits = 0
@@ -344,9 +348,9 @@ def _flood(  # pragma: no cover - compiled
                 if mark[sy, sx] != 0:
                     continue
                 left, right = sx, sx
-                while left > 0 and (mark[sy, left - 1] == 0 and free[sy, left - 1] and abs(disp[sy, left - 1] - (au[left - 1] + bv[sy] + c)) < threshold):
+                while left > 0 and fits(sy, left - 1):
                     left -= 1
-                while right < w - 1 and (mark[sy, right + 1] == 0 and free[sy, right + 1] and abs(disp[sy, right + 1] - (au[right + 1] + bv[sy] + c)) < threshold):
+                while right < w - 1 and fits(sy, right + 1):
                     right += 1
                 for xx in range(left, right + 1):
                     mark[sy, xx] = label
@@ -362,11 +366,11 @@ def _flood(  # pragma: no cover - compiled
                         continue
                     xx = left
                     while xx <= right:
-                        if mark[ny, xx] == 0 and free[ny, xx] and abs(disp[ny, xx] - (au[xx] + bv[ny] + c)) < threshold:
+                        if fits(ny, xx):
                             stack[top, 0], stack[top, 1] = ny, xx
                             top += 1
                             xx += 1
-                            while xx <= right and (mark[ny, xx] == 0 and free[ny, xx] and abs(disp[ny, xx] - (au[xx] + bv[ny] + c)) < threshold):
+                            while xx <= right and fits(ny, xx):
                                 xx += 1
                         xx += 1
             if hits > best_hits or (hits == best_hits and first < best_first):
