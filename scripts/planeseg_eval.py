@@ -274,7 +274,7 @@ def main() -> int:
         ]
     results["model_sha256"] = seg.contract.get("sha256")
     # An experiment (--no-doc) only prints: the published JSON and results page stay the shipped model's.
-    return publish(None if args.no_doc else results, "\n".join(lines), json_name="planeseg_eval.json", block="planeseg-eval", write_doc=not args.no_doc)
+    return publish(results, "\n".join(lines), json_name="planeseg_eval.json", block="planeseg-eval", write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,8 @@ and its figures into docs/pipeline/ (or docs/vio/).
 The options every table script takes: `--out DIR` keeps the sweep's folder (a second call with
 it runs only what is not finished there; default a temporary folder), `--workers N` (default
 1: one run at a time, so that the stage times are comparable), `--serial` (in one process,
-without Ray), `--address ADDR` (an existing Ray cluster), `--no-doc` (print the table only).
+without Ray), `--address ADDR` (an existing Ray cluster), `--no-doc` (print the table only:
+the docs/results/ page and the docs/pipeline/ JSON stay as they are).
 """
 
 from __future__ import annotations
@@ -86,10 +87,12 @@ def sweep_runs(config: pathlib.Path, args: argparse.Namespace, options: Sequence
 
 
 def publish(results: dict | None, body: str, *, json_name: str, block: str, write_doc: bool) -> int:
-    """Write `results` to docs/pipeline/JSON_NAME (unless None), put the table `body`
-    between `<!-- BLOCK:start -->` and `<!-- BLOCK:end -->` of the docs/results/ page that
-    holds them (if `write_doc`; `results_doc.write_block`) and print it; returns 0."""
-    if results is not None:
+    """Print the table `body`; if `write_doc`, write `results` to docs/pipeline/JSON_NAME
+    (unless None) and put `body` between `<!-- BLOCK:start -->` and `<!-- BLOCK:end -->` of
+    the docs/results/ page that holds it (`results_doc.write_block`). Returns 0. An
+    experiment (`--no-doc`, often a subset of the matrix) leaves both published files as
+    they are (its runs stay in its `--out` folder)."""
+    if write_doc and results is not None:
         out = ROOT / "docs" / "pipeline" / json_name
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(results, indent=2) + "\n")
