@@ -64,6 +64,11 @@ class WindowPlan(Protocol):
         """Keyframe k's snapshot with what the engine adds (or as it is)."""
         ...
 
+    def solve_variant(self, variant: Variant) -> Variant:
+        """The variant the window is solved with now, for the run's `variant` (VIO: points
+        alone until the initialization)."""
+        ...
+
 
 def visual_window_range(the_map: Map, k: int, *, window: int, fixed_horizon: int) -> tuple[int, int]:
     """The last `window` keyframes of the current map segment, and `fixed_horizon` keyframes
@@ -255,13 +260,14 @@ class PipelineCore:
         return masks, detection, report, hessian
 
     def optimize(self, k: int, timing: dict[str, float], *, max_iterations: int | None = None) -> tuple[OptimizationReport, HessianStructure | None]:
-        """The window of keyframe k solved with the current variant (the plan's range and
-        extension), at most `max_iterations` iterations (None: the settings')."""
+        """The window of keyframe k solved with the current variant as the plan has it (its
+        `solve_variant`, range and extension), at most `max_iterations` iterations (None: the
+        settings')."""
         s = self.settings
         w0, oldest = self.plan.window_range(k)
         window = WindowSettings(s.min_depth_m, s.pixel_sigma, s.min_plane_support)
         settings = SolveSettings(method=s.method, max_iterations=max_iterations or s.max_iterations, cauchy=s.cauchy, hessian=s.hessian, window=window)
-        self.window, report, hessian = solve_window(self.map, k, self.variant, w0=w0, oldest=oldest, extension=self.plan.window_extension(), settings=settings, timing=timing)
+        self.window, report, hessian = solve_window(self.map, k, self.plan.solve_variant(self.variant), w0=w0, oldest=oldest, extension=self.plan.window_extension(), settings=settings, timing=timing)
         return report, hessian
 
     def follow_keyframe(self, i: int, k: int) -> None:

@@ -65,6 +65,7 @@ from backend.frontend.points import Keypoints, stereo_points
 from backend.frontend.segmentation import PlaneSegmenter
 from backend.geometry import line as line_geo
 from backend.mapping.map import KeyframeObservations
+from backend.optim.variant import Variant
 from backend.pipeline.core import CoreEngine, PipelineCore, visual_window_range
 from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED
 from backend.pipeline.snapshot import Snapshot, Tracking
@@ -340,3 +341,7 @@ class StereoEngine(CoreEngine):
 
     def finish_snapshot(self, snapshot: Snapshot, k: int) -> Snapshot:
         return snapshot
+
+    def solve_variant(self, variant: Variant) -> Variant:
+        """Always the run's variant (stereo depth fixes the scale from the first keyframe)."""
+        return variant

@@ -73,6 +73,7 @@ from backend.frontend.segmentation import PlaneSegmenter
 from backend.geometry import so3
 from backend.imu.preintegration import preintegration_params
 from backend.mapping.map import KeyframeObservations
+from backend.optim.variant import Variant
 from backend.pipeline.core import CoreEngine, PipelineCore
 from backend.pipeline.imu_window import ImuModel, InertialState, InertialWindow, InertialWindowSettings, check_imu_coverage
 from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED
@@ -532,6 +533,13 @@ class VioEngine(CoreEngine):
     def window_extension(self) -> WindowExtension:
         s = self.settings
         return InertialWindow(self.inertial, self.map, self.imu_model, InertialWindowSettings(s.window, s.rebias_accel, s.rebias_gyro))
+
+    def solve_variant(self, variant: Variant) -> Variant:
+        """The run's variant; points alone until the initialization where
+        `VioSettings.points_only_before_init` (an experiment, off by default)."""
+        if self.settings.points_only_before_init and not self.inertial.initialized:
+            return Variant.P_WO
+        return variant
 
     def finish_snapshot(self, snapshot: Snapshot, k: int) -> Snapshot:
         """With the IMU state (`vio_start.imu_state`)."""

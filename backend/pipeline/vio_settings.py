@@ -30,7 +30,13 @@ class VioSettings(StereoSettings):
     followed map points (forward-backward checked, then EPnP-RANSAC: fewer suffice than for
     descriptor matches); the last `init_window` keyframes are optimized together before the
     initialization (a shorter window let the monocular scale drift by half within 4 s at a
-    slow pace), and `window` after it (IMU factors over ~6 s hold the scale of a slow
+    slow pace), with points alone where `points_only_before_init` (off: an experiment, not
+    the default; lines and planes are then detected and triangulated from the start but
+    join the solve with the metric scale. Triangulated from keyframes centimetres apart and
+    fitted to those points, they bent PL-w's up-to-scale path by 31 % of its extent on
+    `corridor` seed 2 at speed 1, and the alignment found no positive scale for 5 s; points
+    alone held the shape but cost other runs more than they gained, CHANGELOG 2026-11-29),
+    and `window` after it (IMU factors over ~6 s hold the scale of a slow
     camera); initialization after `init_keyframes` keyframes spanning
     `init_min_span_s`, aligned over the visual window's keyframes at least
     `init_alignment_interval_s` apart (fewer where the span holds fewer than
@@ -96,6 +102,7 @@ class VioSettings(StereoSettings):
     failure_prediction_m: float = 0.5
     failure_prediction_deg: float = 10.0
     failure_disagreeing_frames: int = 3
+    points_only_before_init: bool = False  # an experiment (docstring): lines and planes wait for the start
     flow_tracks: bool = True
     flow_max_tracks: int = 300
     flow_min_distance_px: float = 20.0
