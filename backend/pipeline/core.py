@@ -66,7 +66,8 @@ class WindowPlan(Protocol):
 
     def solve_variant(self, variant: Variant) -> Variant:
         """The variant the window is solved with now, for the run's `variant` (VIO: points
-        alone until the initialization)."""
+        alone until the initialization where `VioSettings.points_only_before_init`, off by
+        default)."""
         ...
 
 
