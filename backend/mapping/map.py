@@ -253,13 +253,45 @@ class Map:
             pts.append(self.segments_world(lines).reshape(-1, 3))
         return np.concatenate(pts)
 
+    def plane_supports(self) -> list[np.ndarray]:
+        """:meth:`plane_support` of every plane (world points, metres), in one pass over the
+        landmarks: each plane's points, then its segments' endpoints, in landmark order."""
+        P, L = self.points, self.lines
+        Q = len(self.planes)
+        p_ids = np.flatnonzero(P.ok[:] & (P.plane[:] >= 0))
+        l_ids = np.flatnonzero(L.ok[:] & (L.plane[:] >= 0))
+        p_by_plane = _split_by(P.plane[p_ids], Q)
+        l_by_plane = _split_by(L.plane[l_ids], Q)
+        p_world = P.p_world[p_ids]
+        ends = self.segments_world(l_ids).reshape(-1, 2, 3)
+        supports = []
+        for q in range(Q):
+            pts = [p_world[p_by_plane[q]]]
+            if len(l_by_plane[q]):
+                pts.append(ends[l_by_plane[q]].reshape(-1, 3))
+            supports.append(np.concatenate(pts))
+        return supports
+
     def hull(self, q: int) -> np.ndarray:
         """Plane q's convex hull of its landmarks' support (world points, metres)."""
         return coplanar.plane_hull(self.planes.n[q], self.planes.d[q], self.plane_support(q))
 
+    def hulls(self) -> list[np.ndarray]:
+        """:meth:`hull` of every plane, from one pass over the landmarks."""
+        return [coplanar.plane_hull(self.planes.n[q], self.planes.d[q], support) for q, support in enumerate(self.plane_supports())]
+
     def refit_unused_planes(self, optimized: set[int]) -> None:
         """Planes the window did not optimize follow their landmarks (least squares)."""
-        for q in range(len(self.planes)):
-            fit = None if q in optimized else coplanar.refit_plane(self.planes.n[q], self.plane_support(q))
+        if all(q in optimized for q in range(len(self.planes))):
+            return
+        for q, support in enumerate(self.plane_supports()):
+            fit = None if q in optimized else coplanar.refit_plane(self.planes.n[q], support)
             if fit is not None:
                 self.planes.n[q], self.planes.d[q] = fit
+
+
+def _split_by(label: np.ndarray, count: int) -> list[np.ndarray]:
+    """Positions in `label` of each value 0..count-1, each in increasing order."""
+    order = np.argsort(label, kind="stable")
+    bounds = np.searchsorted(label[order], np.arange(count + 1))
+    return [order[bounds[q] : bounds[q + 1]] for q in range(count)]

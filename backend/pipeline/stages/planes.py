@@ -97,7 +97,7 @@ def detect_planes(
     lns = new_lines[Lm.plane[new_lines] < 0]
     if len(the_map.planes) and (len(pts) or len(lns)):
         N, D = the_map.planes.arrays()
-        q_p, q_l = coplanar.associate_to_planes(P.p_world[pts], the_map.segments_world(lns), N, D, [the_map.hull(q) for q in range(len(N))], threshold_m=settings.threshold_m)
+        q_p, q_l = coplanar.associate_to_planes(P.p_world[pts], the_map.segments_world(lns), N, D, the_map.hulls(), threshold_m=settings.threshold_m)
         P.plane[pts[q_p >= 0]] = q_p[q_p >= 0]
         Lm.plane[lns[q_l >= 0]] = q_l[q_l >= 0]
     instance_plane = np.full(masks.count, -1, np.int64)

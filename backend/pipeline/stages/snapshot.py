@@ -60,8 +60,12 @@ def build_snapshot(
     points = PointLandmarks(frozen(p_ids.astype(i32)), frozen(P.p_world[p_ids].copy()), frozen(P.plane[p_ids].astype(i32)), frozen(P.anchor[p_ids].astype(i32)), frozen(p_det[p_ids]))
     lines = LineLandmarks(frozen(l_ids.astype(i32)), frozen(the_map.segments_world(l_ids)), frozen(Lm.plane[l_ids].astype(i32)), frozen(Lm.anchor[l_ids].astype(i32)), frozen(l_det[l_ids]))
     planes = []
-    for q in range(len(the_map.planes)):
-        n_p, n_l = int(np.sum((P.plane[:] == q) & P.ok[:])), int(np.sum((Lm.plane[:] == q) & Lm.ok[:]))
+    Q = len(the_map.planes)
+    count_p = np.bincount(P.plane[p_ids][P.plane[p_ids] >= 0], minlength=Q)
+    count_l = np.bincount(Lm.plane[l_ids][Lm.plane[l_ids] >= 0], minlength=Q)
+    hulls = the_map.hulls() if Q else []
+    for q in range(Q):
+        n_p, n_l = int(count_p[q]), int(count_l[q])
         if n_p + n_l == 0:
             continue
         planes.append(
@@ -69,7 +73,7 @@ def build_snapshot(
                 id=q,
                 n=frozen(np.array(the_map.planes.n[q])),
                 d=float(the_map.planes.d[q]),
-                hull_world=frozen(the_map.hull(q)),
+                hull_world=frozen(hulls[q]),
                 n_points=n_p,
                 n_lines=n_l,
                 last_consensus=the_map.planes.consensus[q][0],

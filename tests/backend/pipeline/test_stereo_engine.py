@@ -115,6 +115,23 @@ def test_room_planes_are_walls_floor_and_boxes() -> None:
             assert accepted == (inliers >= 0.8 * candidates)
 
 
+def test_plane_hulls_are_each_planes_own_landmarks() -> None:
+    """The hulls computed for all planes in one pass (snapshots, association) are each
+    plane's own: the points and segment ends labelled with it and not culled, in the order
+    plane_support gives them; the last snapshot shows them with its support counts."""
+    engine, snapshots = _room_pl_w()
+    the_map = engine.map
+    P, Lm = the_map.points, the_map.lines
+    assert len(the_map.planes) >= 3 and np.any(~P.ok[:]) and np.any((Lm.plane[:] >= 0) & Lm.ok[:])
+    for q, (support, hull) in enumerate(zip(the_map.plane_supports(), the_map.hulls(), strict=True)):
+        np.testing.assert_array_equal(support, the_map.plane_support(q))
+        np.testing.assert_array_equal(hull, the_map.hull(q))
+    shown = {p.id: p for p in snapshots[-1].planes}
+    for q, plane in shown.items():
+        assert plane.n_points == np.sum((P.plane[:] == q) & P.ok[:]) and plane.n_lines == np.sum((Lm.plane[:] == q) & Lm.ok[:])
+        np.testing.assert_array_equal(plane.hull_world, the_map.hull(q))
+
+
 def test_snapshots_carry_the_keyframe_image_and_hessian() -> None:
     _, snapshots = _room_pl_w()
     last = snapshots[-1]
