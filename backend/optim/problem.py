@@ -296,6 +296,16 @@ class NormalBlocks:
     B_lines: np.ndarray
     g: np.ndarray
 
+    def diagonal(self) -> np.ndarray:
+        """diag(H) (n,) in the problem's column order."""
+        diag = np.empty(len(self.g))
+        landmarks = np.setdiff1d(np.arange(len(self.g)), self.reduced)
+        diag[self.reduced] = np.diagonal(self.H_rr)
+        P = len(self.d_points)
+        diag[landmarks[:P]] = self.d_points
+        diag[landmarks[P:]] = np.diagonal(self.B_lines, axis1=1, axis2=2).ravel()
+        return diag
+
     def damped(self, lam: float) -> NormalBlocks:
         """Marquardt's `H + λ diag(H)` (a copy; g shared)."""
         H_rr = self.H_rr.copy()

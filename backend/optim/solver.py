@@ -16,6 +16,7 @@ convergence test held (:func:`optimize`).
 from __future__ import annotations
 
 import dataclasses
+import enum
 import time
 
 import numpy as np
@@ -176,6 +177,17 @@ def solve_normal_equations(lin: Linearization, layout: Layout) -> np.ndarray:
 
 METHODS: tuple[str, ...] = ("gn", "lm")
 
+
+class Damping(enum.Enum):
+    """How Levenberg-Marquardt changes λ: MARQUARDT divides it by 10 after an accepted step
+    and multiplies it by 10 after a rejected one; NIELSEN (Madsen, Nielsen & Tingleff, as
+    g2o and Ceres) scales it by max(1/3, 1 - (2ρ - 1)³) after an accepted step, ρ the gain
+    ratio against the damped model, and by ν = 2, 4, 8, ... after rejected ones in a row."""
+
+    MARQUARDT = "marquardt"
+    NIELSEN = "nielsen"
+
+
 # How a solve ended (SolveReport.termination); only the first two count as converged.
 CONVERGED_COST = "converged: relative cost change below tolerance"
 CONVERGED_STEP = "converged: step below tolerance"
@@ -234,6 +246,7 @@ def optimize(
     max_step_halvings: int = 4,
     initial_lambda: float = 1e-4,
     max_damping_increases: int = 6,
+    damping: Damping = Damping.MARQUARDT,
 ) -> tuple[State, SolveReport]:
     """Minimize the problem's cost from `state` (its initial values by default). A step
     that raises the cost is never accepted.
@@ -243,9 +256,9 @@ def optimize(
     shortened step lowers the cost either, the iteration falls back to Levenberg-Marquardt
     damping on the same linearization (`H + λ diag(H)`, λ from `initial_lambda`, ×10 per
     failure, at most `max_damping_increases` times). `method="lm"`: Levenberg-Marquardt with
-    Marquardt's scaling, λ divided by 10 after a successful step and multiplied by 10
-    (re-solving the same linearization) after a failed one, at most
-    `max_damping_increases` times in a row.
+    Marquardt's scaling, λ changed by `damping` (:class:`Damping`: by default divided by 10
+    after a successful step and multiplied by 10, re-solving the same linearization, after
+    a failed one), at most `max_damping_increases` failures in a row.
 
     An iteration is one linearization and its accepted step; at most `max_iterations`. The
     solve has converged when the accepted step changed the cost by less than
@@ -339,15 +352,26 @@ def optimize(
                 t0 = time.perf_counter()
                 blocks = lin.normal_blocks(layout)
                 t_solve += time.perf_counter() - t0
+            nu = 2.0
             for _increase in range(max_damping_increases + 1):
                 sol = solve(blocks.damped(lam))
                 dropped, how = max(dropped, sol.n_dropped), sol.linear_solver
                 if method == "lm" and np.all(np.isfinite(sol.delta)):
                     predicted = 0.5 * float(sol.delta @ blocks.g)
                 if trial(sol.delta):
-                    lam = max(lam / 10.0, 1e-10)
+                    if damping is Damping.NIELSEN:
+                        # The damped model's decrease: ½ δ·g + ½ λ δ·diag(H) δ.
+                        model = 0.5 * float(sol.delta @ blocks.g) + 0.5 * lam * float(sol.delta @ (blocks.diagonal() * sol.delta))
+                        rho = (costs[-1] - last_trial_cost) / model if model > 0 else 0.0
+                        lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-10)
+                    else:
+                        lam = max(lam / 10.0, 1e-10)
                     break
-                lam *= 10.0
+                if damping is Damping.NIELSEN:
+                    lam *= nu
+                    nu *= 2.0
+                else:
+                    lam *= 10.0
         if accepted is None:
             termination = CONVERGED_MODEL if 0.0 <= predicted <= relative_tolerance * max(costs[-1], 1e-300) else STALLED
             break

@@ -267,7 +267,7 @@ class PipelineCore:
         s = self.settings
         w0, oldest = self.plan.window_range(k)
         window = WindowSettings(s.min_depth_m, s.pixel_sigma, s.min_plane_support)
-        settings = SolveSettings(method=s.method, max_iterations=max_iterations or s.max_iterations, cauchy=s.cauchy, hessian=s.hessian, window=window)
+        settings = SolveSettings(method=s.method, max_iterations=max_iterations or s.max_iterations, cauchy=s.cauchy, hessian=s.hessian, window=window, damping=s.damping)
         self.window, report, hessian = solve_window(self.map, k, self.plan.solve_variant(self.variant), w0=w0, oldest=oldest, extension=self.plan.window_extension(), settings=settings, timing=timing)
         return report, hessian
 

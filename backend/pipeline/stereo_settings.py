@@ -12,6 +12,7 @@ from backend.frontend.lines import LineSettings
 from backend.frontend.points import PointSettings
 from backend.geometry.camera import PinholeCamera
 from backend.mapping import coplanar
+from backend.optim.solver import Damping
 from backend.optim.variant import Variant
 
 
@@ -42,7 +43,10 @@ class StereoSettings:
     this allows; lines stay close); segments at least `min_line_length_m` long; a landmark must be seen by
     `min_keyframe_observations` keyframes within `cull_after_keyframes` keyframes of its
     creation. Window: `window` keyframes optimized, observations from `fixed_horizon` older
-    keyframes enter with fixed poses; `cauchy` is the kernel scale (whitened units) and
+    keyframes enter with fixed poses, solved by `method` (`"lm"`: Levenberg-Marquardt) in at
+    most `max_iterations` iterations with λ changed by `damping` (Nielsen's rule: fewer
+    rejected trial steps than Marquardt's ÷ 10 / × 10, which VIO keeps); `cauchy` is the
+    kernel scale (whitened units) and
     `outlier_px` the error above which an observation is dropped after the solve. A plane
     is optimized in a window only with `min_plane_support` of its features there.
     `skip_unused_stages`: as the paper's Table III, P variants detect no lines and -wo
@@ -82,6 +86,7 @@ class StereoSettings:
     min_plane_support: int = 10
     max_iterations: int = 10
     method: str = "lm"
+    damping: Damping = Damping.NIELSEN
     seed: int = 0
     skip_unused_stages: bool = False
     image_scale: float | None = 0.5

@@ -17,7 +17,7 @@ from backend.common.timing import Stage
 from backend.mapping.map import Map
 from backend.mapping.window import Window, WindowSettings, assemble_window, write_back
 from backend.optim.problem import Problem, ProblemData, State, build_problem
-from backend.optim.solver import optimize
+from backend.optim.solver import Damping, optimize
 from backend.optim.structure import HessianStructure, hessian_structure
 from backend.optim.variant import Variant
 from backend.pipeline.snapshot import OptimizationReport
@@ -71,6 +71,7 @@ class SolveSettings:
     cauchy: float | None
     hessian: bool
     window: WindowSettings
+    damping: Damping = Damping.MARQUARDT
 
 
 def solve_window(
@@ -109,7 +110,7 @@ def solve_window(
         timing[Stage.OPTIMIZATION] = timing[Stage.LINEARIZE] = timing[Stage.SOLVE] = 0.0
         report = OptimizationReport(variant, s.method, 0, 0.0, 0.0, True, problem.layout.n_items, problem.layout.n_params, int(free.sum()), int((~free).sum()), timing)
         return win, report, None
-    state, rep = optimize(problem, method=s.method, max_iterations=s.max_iterations)
+    state, rep = optimize(problem, method=s.method, max_iterations=s.max_iterations, damping=s.damping)
     timing[Stage.OPTIMIZATION] = rep.time_ms
     timing[Stage.LINEARIZE] = rep.linearize_ms
     timing[Stage.SOLVE] = rep.solve_ms

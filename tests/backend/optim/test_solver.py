@@ -11,7 +11,7 @@ import pytest
 from backend.eval import montecarlo, sequences
 from backend.optim import solver
 from backend.optim.problem import Linearization, Problem, ProblemData, build_problem
-from backend.optim.solver import optimize, solve_schur_blocks
+from backend.optim.solver import Damping, optimize, solve_schur_blocks
 
 
 @pytest.fixture(scope="module")
@@ -119,11 +119,11 @@ class _WrongJacobian(Problem):
         return Linearization(batches, lin.costs, lin.n_params)
 
 
-@pytest.mark.parametrize("method", ["gn", "lm"])
-def test_no_descent_is_reported_as_stalled_not_converged(data_b: ProblemData, method: str) -> None:
+@pytest.mark.parametrize(("method", "damping"), [("gn", Damping.MARQUARDT), ("lm", Damping.MARQUARDT), ("lm", Damping.NIELSEN)])
+def test_no_descent_is_reported_as_stalled_not_converged(data_b: ProblemData, method: str, damping: Damping) -> None:
     problem = build_problem(data_b, "P-w")
     wrong = _WrongJacobian(**{f.name: getattr(problem, f.name) for f in dataclasses.fields(Problem)})
-    state, report = optimize(wrong, method=method)
+    state, report = optimize(wrong, method=method, damping=damping)
     assert report.termination == solver.STALLED
     assert not report.converged
     assert report.iterations == 0
@@ -146,3 +146,27 @@ def test_at_the_minimum_it_stops_without_spending_trial_steps(data_b: ProblemDat
     assert report.converged, report.termination
     assert report.iterations < 30
     assert report.linearizations <= report.iterations + 2
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_nielsens_damping_reaches_the_same_minimum_and_never_climbs(seed: int) -> None:
+    """Levenberg-Marquardt with Nielsen's λ rule (the stereo windows' default) on sequence b
+    started 5° and 50 cm off, PL-wo: the costs never rise and it converges to Marquardt's
+    minimum (÷10 / ×10), with no more linearizations."""
+    noise = montecarlo.NoiseModel(pixel=1.0, rotation_rad=np.deg2rad(5.0), position_m=0.5)
+    problem = build_problem(montecarlo.make_problem_data(sequences.make_world("b"), np.random.default_rng([0, seed]), noise=noise), "PL-wo")
+    _, marquardt = optimize(problem, method="lm", max_iterations=50)
+    _, nielsen = optimize(problem, method="lm", damping=Damping.NIELSEN, max_iterations=50)
+    assert marquardt.converged and nielsen.converged
+    assert all(b <= a for a, b in zip(nielsen.costs, nielsen.costs[1:]))
+    assert nielsen.final_cost == pytest.approx(marquardt.final_cost, rel=1e-8)
+    assert nielsen.linearizations <= marquardt.linearizations
+
+
+def test_the_damping_scales_the_diagonal_of_the_normal_equations(data_b: ProblemData) -> None:
+    """`NormalBlocks.diagonal` (Nielsen's gain ratio) is diag(JᵀJ) in the problem's columns,
+    landmarks included."""
+    problem = build_problem(data_b, "PL-wo")
+    lin = problem.linearize(problem.initial_state())
+    H, _ = lin.normal_equations()
+    np.testing.assert_allclose(lin.normal_blocks(problem.layout).diagonal(), np.diag(H), rtol=1e-12, atol=1e-9)
