@@ -61,9 +61,10 @@ def build_snapshot(
     lines = LineLandmarks(frozen(l_ids.astype(i32)), frozen(the_map.segments_world(l_ids)), frozen(Lm.plane[l_ids].astype(i32)), frozen(Lm.anchor[l_ids].astype(i32)), frozen(l_det[l_ids]))
     planes = []
     Q = len(the_map.planes)
-    count_p = np.bincount(P.plane[p_ids][P.plane[p_ids] >= 0], minlength=Q)
-    count_l = np.bincount(Lm.plane[l_ids][Lm.plane[l_ids] >= 0], minlength=Q)
-    hulls = the_map.hulls() if Q else []
+    p_plane, l_plane = P.plane[p_ids], Lm.plane[l_ids]
+    count_p = np.bincount(p_plane[p_plane >= 0], minlength=Q)
+    count_l = np.bincount(l_plane[l_plane >= 0], minlength=Q)
+    hulls = the_map.hulls()
     for q in range(Q):
         n_p, n_l = int(count_p[q]), int(count_l[q])
         if n_p + n_l == 0:
