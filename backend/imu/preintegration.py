@@ -206,15 +206,20 @@ def imu_factor_error(
     )
 
 
-def bias_random_walk_error(bias_i: np.ndarray, bias_j: np.ndarray, dt_s: float, noise: ImuNoise) -> BiasWalkResidual:
-    """Whitened `b_j - b_i` (6,) of biases `(accel m/s², gyro rad/s)` over `dt_s` seconds,
-    with standard deviations `random_walk · √dt_s` (densities per √Hz, `noise`)."""
-    if not dt_s > 0.0:
+def bias_random_walk_error(bias_i: np.ndarray, bias_j: np.ndarray, dt_s: float | np.ndarray, noise: ImuNoise) -> BiasWalkResidual:
+    """Whitened `b_j - b_i` (..., 6) of biases `(accel m/s², gyro rad/s)` (..., 6) over `dt_s`
+    seconds (a number, or one per bias pair (...)), with standard deviations
+    `random_walk · √dt_s` (densities per √Hz, `noise`); Jacobians (..., 6, 6). Pairs of
+    biases stacked along leading axes are evaluated at once (the window solve's factors)."""
+    dt = np.asarray(dt_s, dtype=float)
+    if not np.all(dt > 0.0):
         raise ValueError(f"bias random walk needs dt_s > 0, got {dt_s}")
-    sigma = np.sqrt(dt_s) * np.repeat([noise.accelerometer_random_walk, noise.gyroscope_random_walk], 3)
+    sigma = np.sqrt(dt)[..., None] * np.repeat([noise.accelerometer_random_walk, noise.gyroscope_random_walk], 3)
     weight = 1.0 / sigma
-    residual = weight * (np.asarray(bias_j, dtype=float).reshape(6) - np.asarray(bias_i, dtype=float).reshape(6))
-    J = np.diag(weight)
+    b_i, b_j = np.asarray(bias_i, dtype=float), np.asarray(bias_j, dtype=float)
+    residual = weight * (b_j.reshape(b_j.shape[:-1] + (6,)) - b_i.reshape(b_i.shape[:-1] + (6,)))
+    J = np.zeros(weight.shape + (6,))
+    J[..., np.arange(6), np.arange(6)] = weight
     return BiasWalkResidual(residual=residual, J_bias_i=-J, J_bias_j=J)
 
 

@@ -126,11 +126,11 @@ def bias_walk_residuals(bias: np.ndarray, data: InertialData) -> tuple[np.ndarra
     M = len(data.imu_i)
     res = np.zeros((M, 6))
     J = np.zeros((M, 6, 18))
-    for m in range(M):
-        e = bias_random_walk_error(bias[data.imu_i[m]], bias[data.imu_j[m]], float(data.dt_s[m]), data.noise)
-        res[m] = e.residual
-        J[m, :, 3:9] = e.J_bias_i
-        J[m, :, 12:18] = e.J_bias_j
+    if M:
+        e = bias_random_walk_error(bias[data.imu_i], bias[data.imu_j], data.dt_s, data.noise)
+        res[:] = e.residual
+        J[:, :, 3:9] = e.J_bias_i
+        J[:, :, 12:18] = e.J_bias_j
     return res, J
 
 
@@ -148,16 +148,22 @@ def prior_residual(prior: LinearPrior, R: np.ndarray, t: np.ndarray, inertial: n
         w = so3.log(np.einsum("nji,njk->nik", prior.R, R))
         parts.append(np.concatenate([w, t - prior.t], axis=1).ravel())
         A_p = A[:, : 6 * P].reshape(r, P, 6)
-        J[:, : 6 * P].reshape(r, P, 6)[:, :, :3] = np.einsum("rpi,pij->rpj", A_p[:, :, :3], so3.right_jacobian_inv(w))
+        J[:, : 6 * P].reshape(r, P, 6)[:, :, :3] = _times_blocks(A_p[:, :, :3], so3.right_jacobian_inv(w))
     if Q:
         parts.append((inertial - prior.inertial).ravel())
     if K:
         local, J_plane = plane_local(prior.plane_n, prior.plane_d, plane_n, plane_d)
         parts.append(local.ravel())
         c = 6 * P + INERTIAL_DIM * Q
-        J[:, c:] = np.einsum("rki,kij->rkj", A[:, c:].reshape(r, K, 3), J_plane).reshape(r, 3 * K)
+        J[:, c:] = _times_blocks(A[:, c:].reshape(r, K, 3), J_plane).reshape(r, 3 * K)
     dx = np.concatenate(parts) if parts else np.zeros(0)
     return A @ dx + prior.b, J
+
+
+def _times_blocks(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """`A[:, k] @ B[k]` for every k: (r, K, 3) times K blocks (K, 3, 3), summed term by term
+    in the order of `einsum("rki,kij->rkj")` (the same values, twice as fast here)."""
+    return A[:, :, 0, None] * B[None, :, 0, :] + A[:, :, 1, None] * B[None, :, 1, :] + A[:, :, 2, None] * B[None, :, 2, :]
 
 
 def plane_local(n_ref: np.ndarray, d_ref: np.ndarray, n: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

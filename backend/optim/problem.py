@@ -287,7 +287,9 @@ class NormalBlocks:
     """`H = JᵀJ` and `g = -Jᵀr` in the blocks the Schur complement uses, without the dense
     landmark × landmark part (block-diagonal: points 1×1, lines 4×4): `H_rr` (r, r) over the
     reduced columns `reduced` (cameras, then planes), `H_rl` (r, l) against the landmark
-    columns, `d_points` (P,), `B_lines` (L, 4, 4), and g (n,)."""
+    columns, `d_points` (P,), `B_lines` (L, 4, 4), and g (n,). `shared`: what the Schur
+    solve derives from `H_rl` and `g` alone, kept for the damped copies of the same blocks
+    (:meth:`damped` shares both, and this)."""
 
     reduced: np.ndarray
     H_rr: np.ndarray
@@ -295,6 +297,7 @@ class NormalBlocks:
     d_points: np.ndarray
     B_lines: np.ndarray
     g: np.ndarray
+    shared: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def diagonal(self) -> np.ndarray:
         """diag(H) (n,) in the problem's column order."""
@@ -313,7 +316,7 @@ class NormalBlocks:
         B = self.B_lines.copy()
         idx = np.arange(4)
         B[:, idx, idx] *= 1.0 + lam
-        return NormalBlocks(self.reduced, H_rr, self.H_rl, self.d_points * (1.0 + lam), B, self.g)
+        return NormalBlocks(self.reduced, H_rr, self.H_rl, self.d_points * (1.0 + lam), B, self.g, self.shared)
 
 
 class _Assembler:
@@ -325,10 +328,11 @@ class _Assembler:
         self.n_params = n_params
         self.cache = cache
 
-    def add(self, name: str, residual: np.ndarray, jacobian: np.ndarray, slots: list[tuple[np.ndarray, int]], *, scale: float = 1.0, robust: float | None = None) -> None:
+    def add(self, name: str, residual: np.ndarray, jacobian: np.ndarray, slots: list[tuple[np.ndarray, int]] | np.ndarray, *, scale: float = 1.0, robust: float | None = None) -> None:
         """residual (M, r) and Jacobian (M, r, D) whose columns are the concatenated `slots`
-        (first column (M,) of the variable or -1 if fixed, dimension); `scale` whitens;
-        `robust` is the Cauchy scale on the whitened residual norm (None: plain squares)."""
+        (first column (M,) of the variable or -1 if fixed, dimension), or given as they are
+        (an (M, D) array of columns, -1 where fixed); `scale` whitens; `robust` is the Cauchy
+        scale on the whitened residual norm (None: plain squares)."""
         M, r = residual.shape
         if M == 0:
             return
@@ -343,11 +347,16 @@ class _Assembler:
         else:
             self.costs[name] = self.costs.get(name, 0.0) + float(0.5 * np.sum(sq))
             J = jacobian * scale if scale != 1.0 else jacobian
+        self.batches.append(FactorBatch(name, res, J, slots if isinstance(slots, np.ndarray) else self._columns(name, M, slots)))
+
+    def _columns(self, name: str, M: int, slots: list[tuple[np.ndarray, int]]) -> np.ndarray:
+        """The (M, D) columns of the concatenated `slots`, kept in the problem's cache (they
+        depend only on its structure)."""
         key = ("cols", len(self.batches), name, M)
         cols = self.cache.get(key)
-        if cols is None:  # the columns depend only on the problem's structure
+        if cols is None:
             cols = self.cache[key] = np.concatenate([np.where(c[:, None] >= 0, c[:, None] + np.arange(dim), -1) for c, dim in slots], axis=1)
-        self.batches.append(FactorBatch(name, res, J, cols))
+        return cols
 
     def build(self) -> Linearization:
         return Linearization(tuple(self.batches), self.costs, self.n_params)
@@ -592,7 +601,7 @@ class Problem:
             res, J = inertial.prior_residual(pr, R_all[pr.pose_index], t_all[pr.pose_index], vb, state.plane_n[pr.plane_index], state.plane_d[pr.plane_index])
             slots = [(L.pose_col[pr.pose_index], 6), (icol[pr.inertial_index], 9), (L.plane_col[pr.plane_index], 3)]
             cols = np.concatenate([np.where(c[:, None] >= 0, c[:, None] + np.arange(k), -1).ravel() for c, k in slots])
-            asm.add("marginalization", res[None, :], J[None, :, :], [(np.array([c]), 1) for c in cols])
+            asm.add("marginalization", res[None, :], J[None, :, :], cols[None, :])
 
     def _line_plane_residuals(self, state: State, pairs: np.ndarray, B_planes: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, int]]]:
         """-r line-to-plane residuals (K, 2) of the (line, plane) `pairs` (K, 2), their

@@ -139,7 +139,9 @@ def solve_schur_blocks(ne: NormalBlocks, layout: Layout, *, cache: dict | None =
     n_lines = (hi - mid) // 4
     W = np.zeros_like(H_rl)
     Hinv_g = np.zeros(hi - lo)
-    col_ok = np.isfinite(g_l) & np.isfinite(H_rl.sum(axis=0))
+    col_ok = ne.shared.get("col_ok")
+    if col_ok is None:  # the same for every damping of these blocks
+        col_ok = ne.shared["col_ok"] = np.isfinite(g_l) & np.isfinite(H_rl.sum(axis=0))
     point_ok = np.zeros(0, bool)
     line_ok = np.zeros(0, bool)
     inv = np.zeros((0, 4, 4))
@@ -152,11 +154,16 @@ def solve_schur_blocks(ne: NormalBlocks, layout: Layout, *, cache: dict | None =
         line_ok &= np.all(col_ok[n_pts:].reshape(n_lines, 4), axis=1)
         inv[~line_ok] = 0.0
     used = np.concatenate([point_ok, np.repeat(line_ok, 4)])
-    H_used = H_rl if np.all(used) else np.where(used, H_rl, 0.0)
-    indptr, rows = sparse_schur.landmark_rows(H_used, n_pts, n_lines)
+    kept = ne.shared.get("landmark_rows")
+    if kept is not None and np.array_equal(kept[0], used):  # another damping, the same landmarks
+        H_used, indptr, rows = kept[1:]
+    else:
+        H_used = H_rl if np.all(used) else np.where(used, H_rl, 0.0)
+        indptr, rows = sparse_schur.landmark_rows(H_used, n_pts, n_lines)
+        ne.shared["landmark_rows"] = (used, H_used, indptr, rows)
     if n_pts:
         d_inv = np.where(point_ok, 1.0 / np.where(point_ok, ne.d_points, 1.0), 0.0)
-        W[:, :n_pts] = H_used[:, :n_pts] * d_inv
+        sparse_schur.point_columns_times_inverse(H_used, d_inv, indptr, rows, W)
         Hinv_g[:n_pts] = np.where(point_ok, g_l[:n_pts], 0.0) * d_inv
     if n_lines:
         sparse_schur.line_columns_times_inverse(H_used, inv, indptr, rows, n_pts, W)

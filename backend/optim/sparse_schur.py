@@ -74,6 +74,16 @@ def landmark_rows(H_rl: np.ndarray, n_points: int, n_lines: int) -> tuple[np.nda
 
 
 @numba.njit(cache=True, nogil=True)
+def point_columns_times_inverse(H_rl: np.ndarray, d_inv: np.ndarray, indptr: np.ndarray, rows: np.ndarray, W: np.ndarray) -> None:
+    """`W[:, point k] = H_rl[:, point k] d_inv[k]` (each point's column times the inverse of
+    its 1×1 block) on the rows the point touches; W's other rows are left as they are."""
+    for k in range(d_inv.shape[0]):
+        for a in range(indptr[k], indptr[k + 1]):
+            r = rows[a]
+            W[r, k] = H_rl[r, k] * d_inv[k]
+
+
+@numba.njit(cache=True, nogil=True)
 def line_columns_times_inverse(H_rl: np.ndarray, inv: np.ndarray, indptr: np.ndarray, rows: np.ndarray, n_points: int, W: np.ndarray) -> None:
     """`W[:, line k] = H_rl[:, line k] inv[k]` (each line's four columns times the inverse
     of its 4×4 block) on the rows the line touches; W's other rows are left as they are."""

@@ -211,3 +211,18 @@ def test_bias_random_walk_residual_and_jacobians() -> None:
     np.testing.assert_allclose(result.J_bias_j, _numeric_jacobian(lambda x: bias_random_walk_error(b_i, x, 0.25, NOISE).residual, b_j, step=1e-4), rtol=1e-8)
     with pytest.raises(ValueError, match="dt_s > 0"):
         bias_random_walk_error(b_i, b_j, 0.0, NOISE)
+
+
+def test_bias_random_walk_of_many_pairs_at_once_equals_each_pair() -> None:
+    """The window solve evaluates all its bias factors in one call: the same residuals and
+    Jacobians, value for value, as one call per pair."""
+    rng = np.random.default_rng(2)
+    b_i, b_j, dt_s = rng.normal(0, 0.1, (5, 6)), rng.normal(0, 0.1, (5, 6)), rng.uniform(0.05, 0.5, 5)
+    batch = bias_random_walk_error(b_i, b_j, dt_s, NOISE)
+    for m in range(5):
+        one = bias_random_walk_error(b_i[m], b_j[m], float(dt_s[m]), NOISE)
+        np.testing.assert_array_equal(batch.residual[m], one.residual)
+        np.testing.assert_array_equal(batch.J_bias_i[m], one.J_bias_i)
+        np.testing.assert_array_equal(batch.J_bias_j[m], one.J_bias_j)
+    with pytest.raises(ValueError, match="dt_s > 0"):
+        bias_random_walk_error(b_i, b_j, np.array([0.1, 0.1, 0.0, 0.1, 0.1]), NOISE)

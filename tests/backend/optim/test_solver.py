@@ -170,3 +170,28 @@ def test_the_damping_scales_the_diagonal_of_the_normal_equations(data_b: Problem
     lin = problem.linearize(problem.initial_state())
     H, _ = lin.normal_equations()
     np.testing.assert_allclose(lin.normal_blocks(problem.layout).diagonal(), np.diag(H), rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("variant", ["P-wo", "PL-wo"])
+def test_each_damping_of_one_linearization_solves_its_own_normal_equations(data_b: ProblemData, variant: str) -> None:
+    """The damped copies of one linearization share what the damping does not change (the
+    finite columns, the rows each landmark touches); each damped step is still the solution
+    of `(H + λ diag(H)) δ = g`, and equals the same damping solved from fresh blocks, also
+    with a landmark left out of the step."""
+    problem = build_problem(data_b, variant)
+    lin = problem.linearize(problem.initial_state())
+    H, g = lin.normal_equations()
+    blocks = lin.normal_blocks(problem.layout)
+    for lam in (1e-4, 1e-3, 1e-2):
+        sol = solve_schur_blocks(blocks.damped(lam), problem.layout)
+        expected = np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
+        np.testing.assert_allclose(sol.delta, expected, rtol=1e-6, atol=1e-8 * np.abs(expected).max())
+    assert "landmark_rows" in blocks.shared
+    degenerate = build_problem(_without_observations_of(data_b, 7), variant)
+    lin = degenerate.linearize(degenerate.initial_state())
+    blocks = lin.normal_blocks(degenerate.layout)
+    for lam in (1e-4, 1e-3, 1e-2):
+        shared = solve_schur_blocks(blocks.damped(lam), degenerate.layout)
+        alone = solve_schur_blocks(lin.normal_blocks(degenerate.layout).damped(lam), degenerate.layout)
+        np.testing.assert_array_equal(shared.delta, alone.delta)
+        assert list(shared.dropped_points) == list(alone.dropped_points) == [7]
