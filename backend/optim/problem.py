@@ -302,7 +302,9 @@ class NormalBlocks:
     def diagonal(self) -> np.ndarray:
         """diag(H) (n,) in the problem's column order."""
         diag = np.empty(len(self.g))
-        landmarks = np.setdiff1d(np.arange(len(self.g)), self.reduced)
+        is_landmark = np.ones(len(self.g), bool)
+        is_landmark[self.reduced] = False
+        landmarks = np.flatnonzero(is_landmark)
         diag[self.reduced] = np.diagonal(self.H_rr)
         P = len(self.d_points)
         diag[landmarks[:P]] = self.d_points
