@@ -145,6 +145,19 @@ def rows_of(pairs: tuple[np.ndarray, np.ndarray, np.ndarray], subset: np.ndarray
     return position[rows[keep]], cols[keep], dist[keep]
 
 
+def nearest_ahead(P: np.ndarray, D: np.ndarray, kp: Keypoints, pose: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The two nearest keypoints of `kp` by descriptor (:func:`nearest_hamming`'s candidate
+    pairs, rows indexing `P`) of the map points `P` (world, descriptors `D`) that lie in
+    front of the camera at `pose` (`R_world_camera`, `t_world_camera`): the last frame's,
+    which a frame a moment later cannot have turned away from. The others cannot be in
+    view; on a drive they are nearly half the local map (the points passed), whose search
+    would be wasted."""
+    R, t = pose
+    ahead = np.flatnonzero(((P - t) @ R)[:, 2] > 0.0)
+    rows, cols, dist = nearest_hamming(D[ahead], kp.descriptors, k=2)
+    return ahead[rows], cols, dist
+
+
 def track_frame(
     camera: PinholeCamera,
     s: TrackSettings,
@@ -183,9 +196,9 @@ def track_frame(
     # three times wider search around the prediction, the same around the last frame's
     # pose (where the prediction failed), and PnP-RANSAC on the last keyframe's points and
     # on the whole local map by descriptor (as ORB-SLAM's tracking of the reference
-    # keyframe and its relocalization). The one with the most inliers wins: in repeated
-    # texture a wide search or a subset of the map can agree on a wrong pose with enough
-    # inliers to pass.
+    # keyframe and its relocalization), of the points in front of the last frame's camera.
+    # The one with the most inliers wins: in repeated texture a wide search or a subset of
+    # the map can agree on a wrong pose with enough inliers to pass.
     candidates: list[tuple[Tracked, str]] = []
     if result.ok:
         candidates.append((result, ""))
@@ -201,7 +214,7 @@ def track_frame(
         if len(subset) < s.min_tracking_inliers:
             continue
         if nearest is None:
-            nearest = nearest_hamming(D, kp.descriptors, k=2)
+            nearest = nearest_ahead(P, D, kp, last_frame if last_frame is not None else (R, t))
         found = rows_of(nearest, subset, n_rows=len(ids))
         reloc = relocalize(camera, P[subset], D[subset], kp.uv, kp.descriptors, max_hamming=s.max_hamming, ratio=s.match_ratio, min_inliers=s.min_tracking_inliers, seed=s.seed + i, candidates=found)
         if reloc is not None:

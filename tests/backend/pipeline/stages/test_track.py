@@ -11,12 +11,12 @@ import numpy as np
 from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
 from backend.frontend.lines import detect_segments
-from backend.frontend.points import detect_points, nearest_hamming
+from backend.frontend.points import Keypoints, detect_points, nearest_hamming
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.optim.variant import Variant
 from backend.pipeline.engine import EngineCheckpoint
-from backend.pipeline.stages.track import LineAid, Tracked, rows_of, track_frame
+from backend.pipeline.stages.track import LineAid, Tracked, nearest_ahead, rows_of, track_frame
 from backend.pipeline.stereo_engine import StereoEngine, StereoSettings
 from backend.pipeline.tracking import relocalize
 
@@ -125,3 +125,30 @@ def test_relocalizing_against_a_subset_with_the_whole_maps_search_is_the_same_as
         np.testing.assert_array_equal(a, b)
     assert (alone[2] >= 0).sum() > 60
     np.testing.assert_allclose(alone[1], 0.0, atol=0.02)  # the camera at the world origin
+
+
+def test_relocalization_searches_only_the_points_in_front_of_the_last_frame() -> None:
+    """The points a drive has passed lie behind the camera and cannot be in view: the
+    relocalization's descriptor search leaves them out (`nearest_ahead`, rows still
+    indexing the whole local map), and finds the same pose and matches as searching every
+    point, look-alikes behind the camera included (repeated texture along a street)."""
+    rng = np.random.default_rng(5)
+    camera = PinholeCamera(fx=458.0, fy=457.0, cx=367.0, cy=248.0, width=752, height=480)
+    front = np.column_stack([rng.uniform(-2.0, 2.0, 300), rng.uniform(-1.5, 1.5, 300), rng.uniform(3.0, 8.0, 300)])
+    behind = front[:200] * np.array([1.0, 1.0, -1.0])  # passed: mirrored behind the camera
+    p_world = np.concatenate([front, behind])
+    desc_front = rng.integers(0, 256, (300, 32), dtype=np.uint8)
+    desc = np.concatenate([desc_front, desc_front[:200]])  # the same texture again
+    uv = camera.project(front)
+    seen = np.flatnonzero(camera.in_image(uv))
+    kp = Keypoints(uv=uv[seen] + rng.normal(0.0, 0.5, (len(seen), 2)), descriptors=desc_front[seen] ^ (rng.random((len(seen), 32)) < 0.02).astype(np.uint8), octave=np.zeros(len(seen), np.int32))
+    ahead = nearest_ahead(p_world, desc, kp, (np.eye(3), np.zeros(3)))
+    assert ahead[0].max() < 300 and len(np.unique(ahead[0])) == 300  # every point in front, none behind
+    everything = np.arange(len(p_world))
+    found = relocalize(camera, p_world, desc, kp.uv, kp.descriptors, max_hamming=50, ratio=0.9, min_inliers=20, seed=1, candidates=rows_of(ahead, everything, n_rows=len(p_world)))
+    searched_all = relocalize(camera, p_world, desc, kp.uv, kp.descriptors, max_hamming=50, ratio=0.9, min_inliers=20, seed=1)
+    assert found is not None and searched_all is not None
+    for a, b in zip(found, searched_all, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert (found[2] >= 0).sum() > 100 and np.all(found[2][300:] < 0)
+    np.testing.assert_allclose(found[1], 0.0, atol=0.02)
