@@ -97,3 +97,34 @@ def test_cost_ticks_are_plain_numbers() -> None:
     assert [plots.compact_number(t) for t in plots.cost_ticks(300, 6000)] == ["500", "1,000", "2,000", "5,000"]
     assert [plots.compact_number(t) for t in plots.cost_ticks(10, 1.2e7)] == ["10", "1,000", "1e5", "1e7"]
     assert len(plots.cost_ticks(3000, 5000)) >= 2
+
+
+def test_the_tabs_image_is_the_saved_png_drawn_once(series) -> None:
+    """The Plots tab's image (drawn straight into Agg's buffer) has the pixels of the PNG
+    `plots_png` saves, with and without a shown keyframe."""
+    import io
+
+    from PIL import Image
+
+    for current in (None, series[3].keyframe):
+        image = plots.plots_image(series, current=current)
+        saved = np.asarray(Image.open(io.BytesIO(plots.plots_png(series, current=current))).convert("RGB"))
+        assert image.dtype == np.uint8 and image.shape == saved.shape == (plots.HEIGHT_PX, plots.WIDTH_PX, 3)
+        np.testing.assert_array_equal(image, saved)
+
+
+def test_the_kept_figure_draws_what_a_new_one_would(series) -> None:
+    """The Plots tab keeps its figure and replaces the data as keyframes come and the shown
+    one moves: every image is a new figure's (up to the layout's rounding: a pixel or so by
+    one grey level), and the figure is built again only when its panels change."""
+    canvas = plots.PlotCanvas()
+    for n in range(2, len(series) + 1):
+        for shown in (series[n - 1].keyframe, series[0].keyframe):
+            image = canvas.image(series[:n], current=shown)
+            new = plots.plots_image(series[:n], current=shown)
+            differs = np.any(image != new, axis=2)
+            assert np.count_nonzero(differs) <= 10, (n, shown, np.count_nonzero(differs))
+            assert np.abs(image.astype(int) - new).max(initial=0) <= 3
+    assert canvas.built < len(series) - 1  # reused at least once
+    without_shown = canvas.image(series, current=None)  # no vertical line: a new figure
+    np.testing.assert_array_equal(without_shown, plots.plots_image(series, current=None))

@@ -11,9 +11,10 @@ from collections.abc import Callable
 
 import viser
 
+from backend.common.priority import lower_this_thread
 from backend.pipeline.snapshot import Snapshot
 from viewer import images
-from viewer.plots import plots_image
+from viewer.plots import PlotCanvas
 from viewer.settings import ViewerSettings
 from viewer.tabs.base import Shown, TabActions
 
@@ -46,9 +47,11 @@ PLOT_PLAY_PERIOD_S = 1.0  # and while playing, at most this often
 
 class PlotDrawer:
     """Draws the plots into `image` on a thread of its own, off the engine's: once the
-    worker has been idle for PLOT_DEBOUNCE_S (drawing takes about 150 ms of a shared CPU and
+    worker has been idle for PLOT_DEBOUNCE_S (drawing takes 0.25-0.4 s of a shared CPU and
     must not slow a burst of steps or scrubbing), and while playing between two steps at
-    most every PLOT_PLAY_PERIOD_S. The newest request wins."""
+    most every PLOT_PLAY_PERIOD_S. The newest request wins. The thread runs at a lower OS
+    priority (`backend.common.priority`, Linux), so that the step computed ahead and the
+    browser come first."""
 
     def __init__(self, image: viser.GuiImageHandle, *, working: threading.Event, playing: threading.Event, worked_at: Callable[[], float]) -> None:
         self.image = image
@@ -60,6 +63,7 @@ class PlotDrawer:
         self._drawing = threading.Event()
         self._stopped = threading.Event()
         self.updates = 0
+        self._canvas = PlotCanvas()  # the figure kept between draws (used on the plot thread only)
         self._thread = threading.Thread(target=self._loop, name="coplanar-plots", daemon=True)
         self._thread.start()
 
@@ -68,6 +72,7 @@ class PlotDrawer:
         self._event.set()
 
     def _loop(self) -> None:
+        lower_this_thread()  # drawing (0.3-0.4 s of CPU) yields to the engine's step and the browser
         last_draw = 0.0
         while not self._stopped.is_set():
             if not self._event.wait(timeout=0.5):
@@ -83,7 +88,7 @@ class PlotDrawer:
             request, self._request = self._request, None
             try:
                 if request is not None and request[0]:
-                    self.image.image = plots_image(request[0], current=request[1])
+                    self.image.image = self._canvas.image(request[0], current=request[1])
                     self.updates += 1
             except Exception:  # a plot must never stop the debugger
                 log.error("plot error:\n%s", traceback.format_exc())
