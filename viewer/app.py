@@ -67,7 +67,7 @@ class Debugger:
         self.views = CameraViews(self.server, shown=lambda: self._shown)
         self.server.on_client_connect(self.views.on_connect)
         self.worker.start()
-        self.plots = PlotDrawer(self.plots_tab.image, working=self.worker.working, playing=self._playing, worked_at=lambda: self.worker.worked_at)
+        self.plots = PlotDrawer(self.plots_tab.image, working=self.worker.working, playing=self._playing, worked_at=lambda: self.worker.worked_at, ahead=self.worker.ahead)
 
     # ------------------------------------------------------------------ GUI
 

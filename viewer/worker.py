@@ -31,8 +31,8 @@ class Worker:
     command has run, no other waits and `idle()` says so, the worker queues its own
     `Command.AHEAD` (the next step computed ahead; skipped if a command comes first), so
     `wait_idle` also waits for it; it does not count as work for `working` and
-    `worked_at`, so the plots of what is shown are drawn meanwhile, not when the user may
-    act next."""
+    `worked_at`, and `ahead` is set while it runs (the plots wait for it: drawing beside it
+    held the GIL and slowed it past the next click)."""
 
     def __init__(
         self,
@@ -46,6 +46,7 @@ class Worker:
         self.commands = CommandQueue()
         self.playing = threading.Event()
         self.working = threading.Event()
+        self.ahead = threading.Event()  # set while the step ahead runs
         self.worked_at = 0.0
         self._execute = execute
         self._period = period
@@ -89,8 +90,10 @@ class Worker:
             if command is Command.AHEAD and (self.playing.is_set() or self.commands.pending()):
                 self.commands.task_done()  # a command came meanwhile: it goes first
                 continue
-            if command is not Command.AHEAD:  # the plots wait for a pause in the user's commands, not for the step ahead
+            if command is not Command.AHEAD:  # the plots wait for a pause in the user's commands and for the step ahead
                 self.working.set()
+            else:
+                self.ahead.set()
             try:
                 self._execute(command, arg)
             except Exception as exc:  # an error in a step pauses the run, the server stays up
@@ -98,6 +101,7 @@ class Worker:
                 self.playing.clear()
                 self._failed(command, exc)
             finally:
+                self.ahead.clear()
                 if command is not Command.AHEAD:
                     self._done()
                     self.worked_at = time.monotonic()

@@ -54,3 +54,24 @@ def test_trims_at_most_every_few_seconds_while_playing(trims: list[float], monke
         w.stop()
     assert steps > 20
     assert 2 <= len(trims) <= 5  # about one per 0.3 s, not one per step
+
+
+def test_the_step_ahead_is_flagged_while_it_runs_and_only_it() -> None:
+    """`ahead` is set while the worker computes the step ahead (the plot thread waits for it)
+    and clear while it runs the user's commands and after."""
+    seen: list[tuple[Command, bool, bool]] = []
+    w: Worker | None = None
+
+    def execute(command: Command, arg: object) -> None:
+        assert w is not None
+        seen.append((command, w.ahead.is_set(), w.working.is_set()))
+
+    w = Worker(execute, period=lambda: 10.0, failed=lambda c, e: None, done=lambda: None, idle=lambda: True)
+    w.start()
+    try:
+        w.put(Command.STEP)
+        w.wait_idle(timeout=10)
+        assert seen == [(Command.STEP, False, True), (Command.AHEAD, True, False)]
+        assert not w.ahead.is_set()
+    finally:
+        w.stop()

@@ -47,17 +47,19 @@ PLOT_PLAY_PERIOD_S = 1.0  # and while playing, at most this often
 
 class PlotDrawer:
     """Draws the plots into `image` on a thread of its own, off the engine's: once the
-    worker has been idle for PLOT_DEBOUNCE_S (drawing takes 0.25-0.4 s of a shared CPU and
-    must not slow a burst of steps or scrubbing), and while playing between two steps at
-    most every PLOT_PLAY_PERIOD_S. The newest request wins. The thread runs at a lower OS
-    priority (`backend.common.priority`, Linux), so that the step computed ahead and the
-    browser come first."""
+    worker has been idle for PLOT_DEBOUNCE_S and the step computed ahead (`ahead` set while
+    it runs) is done (drawing takes 0.25-0.4 s of a shared CPU and holds the GIL: it must not
+    slow a burst of steps, scrubbing or the step the next click takes), and while playing
+    between two steps at most every PLOT_PLAY_PERIOD_S. The newest request wins. The thread
+    runs at a lower OS priority (`backend.common.priority`, Linux), so that the engine and
+    the browser come first."""
 
-    def __init__(self, image: viser.GuiImageHandle, *, working: threading.Event, playing: threading.Event, worked_at: Callable[[], float]) -> None:
+    def __init__(self, image: viser.GuiImageHandle, *, working: threading.Event, playing: threading.Event, worked_at: Callable[[], float], ahead: threading.Event) -> None:
         self.image = image
         self._working = working
         self._playing = playing
         self._worked_at = worked_at
+        self._ahead = ahead
         self._request: tuple[list[Snapshot], int | None] | None = None
         self._event = threading.Event()
         self._drawing = threading.Event()
@@ -72,13 +74,13 @@ class PlotDrawer:
         self._event.set()
 
     def _loop(self) -> None:
-        lower_this_thread()  # drawing (0.3-0.4 s of CPU) yields to the engine's step and the browser
+        lower_this_thread()  # drawing (0.25-0.4 s of CPU) yields to the engine's step and the browser
         last_draw = 0.0
         while not self._stopped.is_set():
             if not self._event.wait(timeout=0.5):
                 continue
             now = time.monotonic()
-            idle = not self._working.is_set() and now - self._worked_at() >= PLOT_DEBOUNCE_S
+            idle = not self._working.is_set() and not self._ahead.is_set() and now - self._worked_at() >= PLOT_DEBOUNCE_S
             due = self._playing.is_set() and not self._working.is_set() and now - last_draw >= PLOT_PLAY_PERIOD_S
             if not (idle or due):
                 time.sleep(0.05)
