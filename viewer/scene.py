@@ -73,6 +73,9 @@ NODE_LAYER = {
 }
 
 
+SHADER_KEEPER = "/world/shader_keeper"  # scene nodes that only keep shaders compiled in the browser (SceneView._keep_point_shaders)
+
+
 def frustum_segments(R_world_camera: np.ndarray, t_world_camera: np.ndarray, camera: PinholeCamera, *, depth: float = FRUSTUM_DEPTH_M) -> np.ndarray:
     """Wireframe (K * 8, 2, 3) of K camera frustums: four edges from the centre to the image
     corners at `depth` metres, and the image rectangle."""
@@ -133,6 +136,22 @@ class SceneView:
         server.scene.configure_default_lights(cast_shadow=False)
         server.scene.add_line_segments("/world/grid", grid_segments(half=GRID_HALF_M, cell=1.0).astype(np.float32), COLOR_GRID, thickness=1.0, thickness_units="screen")
         server.scene.add_frame("/world/axes", axes_length=0.5, axes_radius=0.015)
+        self._keep_point_shaders(server)
+
+    @staticmethod
+    def _keep_point_shaders(server: viser.ViserServer) -> None:
+        """Two one-point clouds at the origin (inside the axes, never changed) that keep the
+        browser's point shaders compiled. viser's client (1.1.1) builds a new material
+        whenever a cloud's colours change and disposes the old one first; three.js then
+        frees the shader program when no other material uses it and compiles it again for
+        the new one. The map's points change colours at every step (a colour per point), so
+        every step compiled the shader again: about 100 ms of the page's time on a room
+        step in software WebGL (docs/results/debugger.md). One cloud holds the variant with
+        a colour per point, one the single-colour variant (RANSAC inliers and outliers)."""
+        origin = np.zeros((2, 3), np.float32)
+        tiny = 1e-6  # m: under a pixel (drawn as one, inside the axes' origin)
+        server.scene.add_point_cloud(f"{SHADER_KEEPER}/per_point", origin, np.array([[128, 128, 128], [129, 128, 128]], np.uint8), point_size=tiny, point_shape="circle", precision="float32")
+        server.scene.add_point_cloud(f"{SHADER_KEEPER}/one_colour", origin[:1], (128, 128, 128), point_size=tiny, point_shape="circle", precision="float32")
 
     def _visible(self, name: str) -> bool:
         layer = next((v for k, v in NODE_LAYER.items() if name.startswith(k)), None)
