@@ -203,6 +203,11 @@ def plots_figure(snapshots: list[Snapshot], *, current: int | None) -> Figure:
     """The plots of `snapshots` (one per keyframe, in order) as a matplotlib figure
     (`WIDTH_PX` wide at `DPI`); `current` is the keyframe marked by a vertical line. Every
     axis says its unit; costs are on a log axis, legends sit above their panel."""
+    return _figure(snapshots, _curves(snapshots), current=current)
+
+
+def _figure(snapshots: list[Snapshot], curves: dict[str, tuple[np.ndarray, np.ndarray]], *, current: int | None) -> Figure:
+    """:func:`plots_figure` with the snapshots' :func:`_curves` already computed."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -216,7 +221,6 @@ def plots_figure(snapshots: list[Snapshot], *, current: int | None) -> Figure:
     axes = list(fig.subplots(len(ratios), 1, sharex=True, height_ratios=ratios))
     if inertial:  # the IMU panel goes above the events strip
         axes = axes[:4] + [axes[5], axes[4]]
-    curves = _curves(snapshots)
     x = curves["RMSE"][0]
     style = dict(marker=".", markersize=3, linewidth=1.2)
     twins: dict[int, Axes] = {}
@@ -296,8 +300,9 @@ class PlotCanvas:
     """The plots drawn again and again as the kept keyframes change (the Plots tab): the
     figure is kept and only its data replaced while the panels, the lines drawn and the
     title stay the same, which costs about half of building and laying out a new figure
-    (the layout is still computed at every draw); anything else builds a new one. Either
-    way :meth:`image` gives the pixels :func:`plots_png` would."""
+    (the layout is still computed at every draw); anything else builds a new one. A new
+    figure gives the pixels :func:`plots_png` would; a kept one the same up to a pixel of
+    the layout's rounding (it starts from the previous positions)."""
 
     def __init__(self) -> None:
         self._canvas: FigureCanvasAgg | None = None
@@ -311,7 +316,7 @@ class PlotCanvas:
         curves = _curves(snapshots)
         shape = self._shape_of(snapshots, curves, current=current)
         if self._canvas is None or shape != self._shape:
-            self._canvas, self._shape = FigureCanvasAgg(plots_figure(snapshots, current=current)), shape
+            self._canvas, self._shape = FigureCanvasAgg(_figure(snapshots, curves, current=current)), shape
             self.built += 1
         else:
             _replace_data(self._canvas.figure, curves, current=current)
