@@ -69,6 +69,7 @@ from backend.optim.variant import Variant
 from backend.pipeline.core import CoreEngine, PipelineCore, visual_window_range
 from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED
 from backend.pipeline.snapshot import Snapshot, Tracking
+from backend.pipeline.stages.fuse import fuse_points
 from backend.pipeline.stages.solve import VisualWindow, WindowExtension
 from backend.pipeline.stages.track import Tracked, kept_in_view_next
 from backend.pipeline.stereo_settings import StereoSettings
@@ -238,7 +239,7 @@ class StereoEngine(CoreEngine):
         status = np.full(len(kp.uv), POINT_UNUSED, np.uint8)
         status[tracked.match[tracked.match >= 0]] = POINT_OUTLIER if len(tracked.match) == len(local_p) else POINT_UNUSED
         c.add_keyframe(i, R, t)
-        obs, new_points, new_lines = self._observe(k, R, t, kp, stereo, local_p, p_match, segs, local_l, l_match)
+        obs, new_points, new_lines, p_match = self._observe(k, R, t, kp, stereo, local_p, p_match, segs, local_l, l_match)
         status[p_match[p_match >= 0]] = POINT_TRACKED
         status[c.new_point_kp] = POINT_NEW
         c.last_kf_tracked = len(obs.point_id)
@@ -268,14 +269,25 @@ class StereoEngine(CoreEngine):
 
     def _observe(
         self, k: int, R: np.ndarray, t: np.ndarray, kp: Keypoints, stereo, local_p: np.ndarray, p_match: np.ndarray, segs: StereoSegments | None, local_l: np.ndarray, l_match: np.ndarray
-    ) -> tuple[KeyframeObservations, np.ndarray, np.ndarray]:
-        """Record keyframe k's observations of map landmarks and create new ones from stereo."""
+    ) -> tuple[KeyframeObservations, np.ndarray, np.ndarray, np.ndarray]:
+        """Record keyframe k's observations of map landmarks and create new ones from stereo;
+        the local map's points that tracking left unmatched are fused first (`stages.fuse`).
+        Returns the observations, the new points' and lines' ids, and `p_match` with the
+        fused points' keypoints added."""
         s = self.settings
         c = self.core
         P, Lm = c.map.points, c.map.lines
-        tracked_ids, j, claimed = P.reobserve(local_p, p_match, kp.descriptors, n_features=len(kp.uv))
         z = stereo.p_cam[:, 2]
-        fresh = np.flatnonzero(~claimed & stereo.matched & (z > s.min_depth_m) & (z < s.depth_limit_m(c.camera)))  # close and far points
+        usable = stereo.matched & (z > s.min_depth_m) & (z < s.depth_limit_m(c.camera))  # close and far points
+        if s.fuse is not None and len(local_p):
+            free = usable.copy()
+            free[p_match[p_match >= 0]] = False
+            unmatched = np.flatnonzero(p_match < 0)
+            fused = fuse_points(c.camera, R, t, P.p_world[local_p[unmatched]], P.desc[local_p[unmatched]], stereo, free, settings=s.fuse)
+            p_match = p_match.copy()
+            p_match[unmatched[fused >= 0]] = fused[fused >= 0]
+        tracked_ids, j, claimed = P.reobserve(local_p, p_match, kp.descriptors, n_features=len(kp.uv))
+        fresh = np.flatnonzero(~claimed & usable)
         c.new_point_kp = fresh
         new_points = P.add(
             p_world=stereo.p_cam[fresh] @ R.T + t,
@@ -327,7 +339,7 @@ class StereoEngine(CoreEngine):
             c.line_seg_index = np.zeros(0, np.int64)
         obs = KeyframeObservations(point_id, stereo.uv_left[point_kp], stereo.u_right[point_kp], line_id, line_uv, line_ruv)
         c.map.observations[k] = obs
-        return obs, new_points, new_lines
+        return obs, new_points, new_lines, p_match
 
     # ------------------------------------------------------------------ the window plan (core.WindowPlan)
 

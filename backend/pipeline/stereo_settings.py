@@ -14,6 +14,7 @@ from backend.geometry.camera import PinholeCamera
 from backend.mapping import coplanar
 from backend.optim.solver import Damping
 from backend.optim.variant import Variant
+from backend.pipeline.stages.fuse import FuseSettings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +56,10 @@ class StereoSettings:
     (None: no image). `hessian`: put the window's Hessian structure in snapshots (the
     debugger shows it; headless runs skip it). `read_ahead`: the next frame is read and
     its ORB keypoints detected on a worker thread while the current one is tracked
-    (`backend.pipeline.prefetch`; the outputs are the same either way)."""
+    (`backend.pipeline.prefetch`; the outputs are the same either way). `fuse`: at a
+    keyframe, the local map's points that tracking left unmatched are searched again among
+    its free stereo keypoints and re-observed instead of duplicated (`stages.fuse`,
+    ORB-SLAM's Fuse; None: off; stereo keyframes only, VIO's monocular ones are not fused)."""
 
     variant: Variant = Variant.PL_W
     window: int = 10
@@ -95,6 +99,7 @@ class StereoSettings:
     points: PointSettings = PointSettings()
     lines: LineSettings = LineSettings()
     coplanar: coplanar.CoplanarSettings = coplanar.CoplanarSettings()
+    fuse: FuseSettings | None = FuseSettings()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "variant", Variant.parse(self.variant))  # a name given as text is parsed here, once
