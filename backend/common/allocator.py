@@ -15,6 +15,9 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import functools
+import mmap
+
+import numpy as np
 
 M_ARENA_MAX = -8  # mallopt's parameter number in glibc's malloc.h
 
@@ -43,3 +46,25 @@ def release_free_memory() -> bool:
     more the more was freed). True if memory was released."""
     libc = _libc()
     return bool(libc is not None and libc.malloc_trim(0) == 1)
+
+
+def mapped_zeros(shape: tuple[int, ...], dtype: np.dtype | type, *, min_bytes: int = 64 * 1024) -> np.ndarray:
+    """A zero-filled array, in an anonymous memory mapping of its own when it has at least
+    `min_bytes` (else from the heap, as `np.zeros`). Its pages go back to the system as soon
+    as it and every view of it are freed, whatever else the heap holds: for large arrays
+    that outlive the temporaries allocated around them (the debugger's kept snapshots, the
+    map's buffers and their checkpoints), whose holes in glibc's heap would otherwise stay
+    as fragments that later requests only partly fill. Writable; its `base` is the mapping."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    if nbytes < min_bytes:
+        return np.zeros(shape, dtype)
+    return np.frombuffer(mmap.mmap(-1, nbytes), dtype=dtype).reshape(shape)
+
+
+def own_mapping(array: np.ndarray, *, min_bytes: int = 64 * 1024) -> np.ndarray:
+    """A C-contiguous copy of `array`, in a mapping of its own when large (`mapped_zeros`)."""
+    a = np.asarray(array)
+    out = mapped_zeros(a.shape, a.dtype, min_bytes=min_bytes)
+    out[...] = a
+    return out

@@ -6,6 +6,8 @@ from typing import Any
 
 import numpy as np
 
+from backend.common.allocator import mapped_zeros, own_mapping
+
 
 class RowBuffer:
     """Rows of shape `row_shape` appended one at a time (amortized O(1)).
@@ -17,7 +19,7 @@ class RowBuffer:
     """
 
     def __init__(self, row_shape: tuple[int, ...], *, dtype: type = float, capacity: int = 64) -> None:
-        self._data: np.ndarray = np.zeros((capacity, *row_shape), dtype=dtype)
+        self._data: np.ndarray = mapped_zeros((capacity, *row_shape), dtype)
         self._n = 0
 
     def __len__(self) -> int:
@@ -28,7 +30,7 @@ class RowBuffer:
         checkpoint would otherwise hold up to twice its rows; the copy grows on its next
         append)."""
         new = RowBuffer.__new__(RowBuffer)
-        new._data = self._data[: max(self._n, 1)].copy()
+        new._data = own_mapping(self._data[: max(self._n, 1)])
         new._n = self._n
         memo[id(self)] = new
         return new
@@ -36,7 +38,7 @@ class RowBuffer:
     def append(self, row: np.ndarray | float) -> int:
         """Append a row; returns its index."""
         if self._n == len(self._data):
-            grown = np.zeros((2 * len(self._data), *self._data.shape[1:]), dtype=self._data.dtype)
+            grown = mapped_zeros((2 * len(self._data), *self._data.shape[1:]), self._data.dtype)
             grown[: self._n] = self._data[: self._n]
             self._data = grown
         self._data[self._n] = row

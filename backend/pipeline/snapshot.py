@@ -81,10 +81,12 @@ class FrameTrajectory:
 class PointLandmarks:
     """Triangulated points: world positions (m), plane id (-1: none), anchor keyframe, and
     the state of the last detection that tested them (NOT_TESTED / INLIER / OUTLIER). The
-    integers are int32: every snapshot the debugger keeps holds the whole map."""
+    integers are int32 and the positions float32 (a micrometre at 10 m; the page draws and
+    the PLY export writes float32 anyway): every snapshot the debugger keeps holds the
+    whole map, and its points are most of it."""
 
     id: np.ndarray  # (P,) int32 stable landmark ids
-    p_world: np.ndarray  # (P, 3) float64
+    p_world: np.ndarray  # (P, 3) float32
     plane: np.ndarray  # (P,) int32
     anchor: np.ndarray  # (P,) int32 keyframe index
     detection: np.ndarray  # (P,) uint8

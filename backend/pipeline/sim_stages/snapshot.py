@@ -62,7 +62,7 @@ def build_snapshot(
     l_det[det_state[2]] = det_state[3]
     segs = L.segments_world(l_ids, camera=camera, poses=poses)
     i32 = np.int32  # the snapshot's integers (snapshot.PointLandmarks)
-    points = PointLandmarks(frozen(p_ids.astype(i32)), frozen(L.p_world[p_ids].copy()), frozen(L.p_plane[p_ids].astype(i32)), frozen(L.p_anchor[p_ids].astype(i32)), frozen(p_det[p_ids]))
+    points = PointLandmarks(frozen(p_ids.astype(i32)), frozen(L.p_world[p_ids].astype(np.float32)), frozen(L.p_plane[p_ids].astype(i32)), frozen(L.p_anchor[p_ids].astype(i32)), frozen(p_det[p_ids]))
     lines = LineLandmarks(frozen(l_ids.astype(i32)), frozen(segs), frozen(L.l_plane[l_ids].astype(i32)), frozen(L.l_anchor[l_ids].astype(i32)), frozen(l_det[l_ids]))
     plane_marks = []
     for q in range(len(planes.n)):

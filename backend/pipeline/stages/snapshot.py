@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from backend.common.allocator import own_mapping
 from backend.eval.trajectory import ate_rmse, translational_rmse
 from backend.mapping.map import Map
 from backend.optim.structure import HessianStructure
@@ -57,7 +58,14 @@ def build_snapshot(
     l_det = np.zeros(len(Lm), np.uint8)
     l_det[det_state[2]] = det_state[3]
     i32 = np.int32  # the snapshot's integers (snapshot.PointLandmarks)
-    points = PointLandmarks(frozen(p_ids.astype(i32)), frozen(P.p_world[p_ids].copy()), frozen(P.plane[p_ids].astype(i32)), frozen(P.anchor[p_ids].astype(i32)), frozen(p_det[p_ids]))
+    kept = own_mapping  # kept for as long as the debugger keeps the snapshot (backend/common/allocator.py)
+    points = PointLandmarks(
+        frozen(kept(p_ids.astype(i32))),
+        frozen(kept(P.p_world[p_ids].astype(np.float32))),
+        frozen(kept(P.plane[p_ids].astype(i32))),
+        frozen(kept(P.anchor[p_ids].astype(i32))),
+        frozen(kept(p_det[p_ids])),
+    )
     lines = LineLandmarks(frozen(l_ids.astype(i32)), frozen(the_map.segments_world(l_ids)), frozen(Lm.plane[l_ids].astype(i32)), frozen(Lm.anchor[l_ids].astype(i32)), frozen(l_det[l_ids]))
     planes = []
     Q = len(the_map.planes)
