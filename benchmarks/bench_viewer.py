@@ -22,7 +22,9 @@ choice to the "Shown" field naming it; `--pause` ms before each choice.
 
 memory: `--steps` engine steps through the debugger (every snapshot drawn, the history
 capped at its default) with one browser tab connected; prints the server's resident set
-size every 100 steps.
+size every 100 steps. The server runs in a process of its own, as `coplanar serve` does
+(this script starts it again as `memory-server` and drives the page from here): the
+browser driver's client and the test helpers' imports are not the server's memory.
 """
 
 from __future__ import annotations
@@ -35,14 +37,15 @@ import argparse
 import dataclasses
 import pathlib
 import platform
+import socket
 import statistics
+import subprocess
 import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the browser test helpers
-from tests.browser.conftest import CHROMIUM, FLAGS, open_page, start_debugger, wait_shown
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the project and the browser test helpers
 
 # Click Step and wait (in the page) until the "Shown" field differs from its old value;
 # returns [ms to the field change, ms to the next animation frame after it].
@@ -72,12 +75,28 @@ async (expected) => {
 """
 
 
+def _free_port() -> int:
+    """A free local TCP port (without the test helpers: pytest is not the server's)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
 def _rss_mib() -> float:
     with open("/proc/self/status") as f:
         for line in f:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024.0
     return float("nan")
+
+
+def _rollup_mib() -> dict[str, float]:
+    """This process's /proc/self/smaps_rollup, MiB by field (empty where there is none)."""
+    try:
+        with open("/proc/self/smaps_rollup") as f:
+            return {line.split(":")[0]: int(line.split()[1]) / 1024.0 for line in f if line.rstrip().endswith("kB")}
+    except OSError:
+        return {}
 
 
 def _summary(values: list[float]) -> str:
@@ -103,18 +122,19 @@ def _room_debugger(*, duration_s: float | None = None, history_mb: float | None 
 
     limit_arenas()  # as `coplanar serve` does before the engine's threads start
     from backend.pipeline.factory import EngineConfig, make_engine
-    from tests.browser.conftest import free_port
     from viewer.app import Debugger
     from viewer.settings import ViewerSettings
 
     engine = make_engine(EngineConfig(scene="room", duration_s=duration_s or DEFAULT_DURATION_S, interactive=True))
     settings = ViewerSettings() if history_mb is None else ViewerSettings(history_mb=history_mb)
-    debugger = Debugger(engine, port=free_port(), settings=settings)
+    debugger = Debugger(engine, port=_free_port(), settings=settings)
     debugger.server.scene.configure_environment_map(hdri=None)
     return debugger
 
 
 def bench_latency(browser, args: argparse.Namespace) -> None:
+    from tests.browser.conftest import open_page, start_debugger, wait_shown
+
     debugger = _room_debugger() if args.scene == "room" else start_debugger(sequence=args.sequence)
     try:
         for _ in range(args.warmup):
@@ -151,7 +171,7 @@ def bench_latency(browser, args: argparse.Namespace) -> None:
 
 
 def bench_switch(browser, args: argparse.Namespace) -> None:
-    from tests.browser.conftest import field
+    from tests.browser.conftest import field, open_page, start_debugger, wait_shown
 
     debugger = _room_debugger() if args.scene == "room" else start_debugger(sequence=args.sequence)
     others = ("P-wo", "PL-wo", "P-r", "PL-r", "P-w")
@@ -185,6 +205,7 @@ def bench_switch(browser, args: argparse.Namespace) -> None:
 
 def bench_points(browser, args: argparse.Namespace) -> None:
     from backend.pipeline.snapshot import PointLandmarks, frozen
+    from tests.browser.conftest import open_page, start_debugger, wait_shown
 
     debugger = start_debugger(sequence="a")
     try:
@@ -224,18 +245,71 @@ def bench_points(browser, args: argparse.Namespace) -> None:
 
 
 def bench_memory(browser, args: argparse.Namespace) -> None:
+    """The page, driven from here, of the server that `memory_server` runs in a child process
+    (which prints the table)."""
+    from tests.browser.conftest import TIMEOUT_MS, wait_shown
+
+    argv = [
+        sys.executable,
+        str(pathlib.Path(__file__).resolve()),
+        "memory-server",
+        "--scene",
+        args.scene,
+        "--sequence",
+        args.sequence,
+        "--steps",
+        str(args.steps),
+        "--variants-every",
+        str(args.variants_every),
+    ]
+    if args.history_mb is not None:
+        argv += ["--history-mb", str(args.history_mb)]
+    server = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+    assert server.stdin is not None and server.stdout is not None
+    try:
+        page = None
+        for line in server.stdout:
+            if line.startswith("PORT "):
+                page = browser.new_page(viewport={"width": 1400, "height": 900})
+                page.set_default_timeout(TIMEOUT_MS)
+                page.goto(f"http://127.0.0.1:{int(line.split()[1])}/?fixedDpr=1")
+                page.get_by_role("button", name="Step").wait_for()
+                server.stdin.write("open\n")
+            elif line.startswith("SHOWN "):
+                assert page is not None
+                wait_shown(page, line[len("SHOWN ") :].rstrip("\n"))  # the newest keyframe reached the page
+                server.stdin.write("shown\n")
+            else:
+                print(line, end="", flush=True)
+        if server.wait(timeout=120) != 0:
+            raise SystemExit(f"the memory server failed (exit code {server.returncode})")
+    finally:
+        if server.poll() is None:
+            server.kill()
+
+
+def memory_server(args: argparse.Namespace) -> None:
+    """The debugger alone in this process: `--steps` steps (every variant at every
+    `--variants-every`-th), its RSS every 100 steps; the page is opened by the parent
+    (`bench_memory`), told the port on stdout and answering on stdin."""
     import gc
 
     if args.scene == "room":  # long enough for --steps keyframes (200 s of room's path gave 279)
         debugger = _room_debugger(duration_s=max(60.0, 0.8 * args.steps), history_mb=args.history_mb)
     else:
-        debugger = start_debugger(sequence=args.sequence)
+        from backend.pipeline.sim_engine import SimEngine, SimSettings
+        from viewer.app import Debugger
+
+        debugger = Debugger(SimEngine(SimSettings(sequence=args.sequence)), port=_free_port())
+        debugger.server.scene.configure_environment_map(hdri=None)
     try:
-        page = open_page(browser, debugger)
+        print(f"PORT {debugger.port}", flush=True)
+        if sys.stdin.readline().strip() != "open":
+            raise SystemExit("the page was not opened")
         every = f", every variant at every {args.variants_every}th keyframe" if args.variants_every else ""
-        print(f"{args.scene}{every}, history cap {debugger.session.history.capacity} keyframes / {debugger.session.history.max_bytes / 2**20:.0f} MiB")
+        print(f"{args.scene}{every}, history cap {debugger.session.history.capacity} keyframes / {debugger.session.history.max_bytes / 2**20:.0f} MiB; the server's own process")
         print(f"{'steps':>6s} {'RSS MiB':>8s} {'history':>8s} {'kept MiB':>8s} {'s/100 steps':>11s}")
-        print(f"{0:6d} {_rss_mib():8.1f} {0:8d}")
+        print(f"{0:6d} {_rss_mib():8.1f} {0:8d}", flush=True)
         t0 = time.perf_counter()
         for done in range(100, args.steps + 1, 100):
             for i in range(done - 100, done):
@@ -246,14 +320,19 @@ def bench_memory(browser, args: argparse.Namespace) -> None:
             gc.collect()
             print(f"{done:6d} {_rss_mib():8.1f} {len(debugger.history):8d} {debugger.session.history.bytes / 2**20:8.1f} {time.perf_counter() - t0:11.1f}", flush=True)
             t0 = time.perf_counter()
-        wait_shown(page, f"{debugger.history[-1].keyframe} (PL-w)")  # the newest keyframe (a sequence may end before --steps)
+        print(f"SHOWN {debugger.history[-1].keyframe} (PL-w)", flush=True)  # the newest keyframe (a sequence may end before --steps)
+        if sys.stdin.readline().strip() != "shown":
+            raise SystemExit("the page did not show the newest keyframe")
+        rollup = _rollup_mib()
+        anonymous, rss = rollup.get("Anonymous", float("nan")), rollup.get("Rss", float("nan"))
+        print(f"{'end':>6s} {_rss_mib():8.1f} (the page up to date; anonymous {anonymous:.1f} MiB, file-backed {rss - anonymous:.1f})", flush=True)
     finally:
         debugger.stop()
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("which", choices=("latency", "points", "memory", "switch"))
+    parser.add_argument("which", choices=("latency", "points", "memory", "switch", "memory-server"), help="memory-server: memory's server process (started by memory)")
     parser.add_argument("--scene", choices=("mc-a", "room"), default="mc-a", help="latency, memory, switch: Monte-Carlo sequence (--sequence) or the rendered room")
     parser.add_argument("--sequence", choices=("a", "b"), default="a")
     parser.add_argument("--warmup", type=int, default=30)
@@ -267,8 +346,13 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=1400, help="page size in CSS pixels (latency)")
     parser.add_argument("--height", type=int, default=900)
     args = parser.parse_args()
+    if args.which == "memory-server":
+        memory_server(args)
+        return
     print(f"# python {platform.python_version()}, {platform.machine()}, {os.cpu_count()} cpus, chromium headless (software WebGL)")
     from playwright.sync_api import sync_playwright
+
+    from tests.browser.conftest import CHROMIUM, FLAGS
 
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
