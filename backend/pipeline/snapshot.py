@@ -28,6 +28,19 @@ def frozen(array: np.ndarray) -> np.ndarray:
     return view
 
 
+def drawable_points(p_world: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rows `ids` of the points `p_world` (N, 3) that have a float32 position, and those
+    positions (`PointLandmarks`' precision). A point solved out to infinity (an inverse depth
+    near zero: beyond float32's 3.4e38 m, e.g. after the VIO start's joint solve, before the
+    next keyframe culls it) or not finite has no position to draw or export: it is left out
+    of the snapshot as a culled one is, instead of becoming inf with a RuntimeWarning."""
+    p = p_world[ids]
+    finite = np.all(np.isfinite(p) & (np.abs(p) <= np.finfo(np.float32).max), axis=1)
+    if not finite.all():
+        ids, p = ids[finite], p[finite]
+    return ids, p.astype(np.float32)
+
+
 @dataclasses.dataclass(frozen=True)
 class Trajectory:
     """Keyframe poses `T_world_camera` (metres, world z up) in keyframe order, timestamps in

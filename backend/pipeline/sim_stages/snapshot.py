@@ -22,6 +22,7 @@ from backend.pipeline.snapshot import (
     PointLandmarks,
     Snapshot,
     Trajectory,
+    drawable_points,
     frozen,
 )
 
@@ -54,7 +55,7 @@ def build_snapshot(
     gt = Trajectory.of(kfs.stamp.prefix(n), kfs.R_gt.prefix(n), kfs.t_gt.prefix(n))
     L = landmarks
     poses = kfs.estimate()
-    p_ids = np.flatnonzero(L.p_ok)
+    p_ids, p_world = drawable_points(L.p_world, np.flatnonzero(L.p_ok))
     p_det = np.zeros(len(L.p_ok), np.uint8)
     p_det[det_state[0]] = det_state[1]
     l_ids = np.flatnonzero(L.l_ok)
@@ -62,7 +63,7 @@ def build_snapshot(
     l_det[det_state[2]] = det_state[3]
     segs = L.segments_world(l_ids, camera=camera, poses=poses)
     i32 = np.int32  # the snapshot's integers (snapshot.PointLandmarks)
-    points = PointLandmarks(frozen(p_ids.astype(i32)), frozen(L.p_world[p_ids].astype(np.float32)), frozen(L.p_plane[p_ids].astype(i32)), frozen(L.p_anchor[p_ids].astype(i32)), frozen(p_det[p_ids]))
+    points = PointLandmarks(frozen(p_ids.astype(i32)), frozen(p_world), frozen(L.p_plane[p_ids].astype(i32)), frozen(L.p_anchor[p_ids].astype(i32)), frozen(p_det[p_ids]))
     lines = LineLandmarks(frozen(l_ids.astype(i32)), frozen(segs), frozen(L.l_plane[l_ids].astype(i32)), frozen(L.l_anchor[l_ids].astype(i32)), frozen(l_det[l_ids]))
     plane_marks = []
     for q in range(len(planes.n)):

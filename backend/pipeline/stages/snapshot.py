@@ -21,6 +21,7 @@ from backend.pipeline.snapshot import (
     Snapshot,
     Tracking,
     Trajectory,
+    drawable_points,
     frozen,
 )
 
@@ -51,7 +52,7 @@ def build_snapshot(
     )
     gt = Trajectory.of(the_map.keyframe_stamp_ns.prefix(n), the_map.R_world_keyframe_true.prefix(n), the_map.t_world_keyframe_true.prefix(n))
     P, Lm = the_map.points, the_map.lines
-    p_ids = np.flatnonzero(P.ok[:])
+    p_ids, p_world = drawable_points(P.p_world[:], np.flatnonzero(P.ok[:]))
     p_det = np.zeros(len(P), np.uint8)
     p_det[det_state[0]] = det_state[1]
     l_ids = np.flatnonzero(Lm.ok[:])
@@ -61,7 +62,7 @@ def build_snapshot(
     kept = own_mapping  # kept for as long as the debugger keeps the snapshot (backend/common/allocator.py)
     points = PointLandmarks(
         frozen(kept(p_ids.astype(i32))),
-        frozen(kept(P.p_world[p_ids].astype(np.float32))),
+        frozen(kept(p_world)),
         frozen(kept(P.plane[p_ids].astype(i32))),
         frozen(kept(P.anchor[p_ids].astype(i32))),
         frozen(kept(p_det[p_ids])),
