@@ -215,7 +215,7 @@ class Debugger:
             if shown is not None:
                 self.engine.set_variant(shown.variant)
                 with self.server.atomic():
-                    set_value(self.variant, shown.variant)
+                    self.controls.show_variant(shown.variant)
             self._set_status(f"**{e}**; still showing {shown.variant if shown is not None else 'nothing'}.")
             return
         if snapshot is None:
@@ -240,7 +240,7 @@ class Debugger:
             self._show_kept(kept)
             return
         with self.server.atomic():
-            set_value(self.variant, shown.variant)
+            self.controls.show_variant(shown.variant)
         newest = self.history.newest_keyframe
         why = f"Variants are re-optimized from the engine's state, which is at the newest keyframe ({newest}); move the slider there to add {name}."
         self._set_status(f"**{name} was not computed at keyframe {shown.keyframe}**: {why[0].lower()}{why[1:]} Still showing {shown.variant}.")
@@ -395,8 +395,7 @@ class Debugger:
         self._shown = snapshot
         self.views.update(snapshot, follow=bool(self.follow.value))
         with self.server.atomic():
-            if self.variant.value != snapshot.variant:
-                set_value(self.variant, snapshot.variant)
+            self.controls.show_variant(snapshot.variant)
             newest = self.history.newest_keyframe if self.history else snapshot.keyframe
             shown = Shown(snapshot, variants=variants, other=other, ab_on=self.engine_b is not None, source=self.engine.source, newest_keyframe=newest)
             for tab in self.tabs:

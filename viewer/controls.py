@@ -6,6 +6,7 @@ debugger writes what it shows into them."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Protocol, TypeVar, runtime_checkable
 
@@ -45,6 +46,9 @@ LAYERS = (
     ("ground_truth", "Ground truth"),
     ("ab", "A/B run (B)"),
 )
+
+
+UNREAD_CHOICE_S = 2.0  # how long a page's choice in the Variant menu waits for its callback (ControlPanel.show_variant)
 
 
 def set_value(handle: viser.GuiInputHandle[T], value: T) -> None:
@@ -99,6 +103,7 @@ class ControlPanel:
         self.status = gui.add_markdown(f"**{engine.source}**: ready, press Step or Play")
         with gui.add_folder("Run"):
             self.variant = gui.add_dropdown("Variant", VARIANT_NAMES, initial_value=str(engine.variant))
+            self._variant_written = str(engine.variant)  # what the server last put in the menu (show_variant)
             self.segmenter: viser.GuiDropdownHandle[str] | None = None
             if isinstance(engine, Segmented):  # image pipelines: plane instances from stereo, the network or (rendered) the truth
                 kinds = [SegmenterKind.GEOMETRIC, SegmenterKind.LEARNED]
@@ -196,9 +201,26 @@ class ControlPanel:
         set_value(self.slider, value)
         self.actions.enqueue(Command.SHOW, value)
 
+    def show_variant(self, variant: Variant | str) -> None:
+        """Put `variant` in the Variant menu (the variant shown), unless a page has just chosen
+        another that its callback has not read yet. viser sets the menu's value when a page's
+        choice arrives and runs the callback later, on its thread pool, which reads the
+        value: a keyframe shown meanwhile (another tab playing) would overwrite the choice,
+        and the callback would then ask for the variant already shown, losing the user's.
+        A choice left unread for `UNREAD_CHOICE_S` (its page closed before viser ran the
+        callback) no longer holds the menu."""
+        name = str(variant)
+        if self.variant.value != self._variant_written and time.time() - self.variant.update_timestamp < UNREAD_CHOICE_S:
+            return  # a page's choice, not yet read
+        if self.variant.value != name:
+            set_value(self.variant, name)
+        self._variant_written = name
+
     def _variant_chosen(self, event: viser.GuiEvent) -> None:
         if event.client is not None:
-            self.actions.enqueue(Command.VARIANT, FromClient(Variant.parse(self.variant.value), event.client))
+            chosen = self.variant.value
+            self.actions.enqueue(Command.VARIANT, FromClient(Variant.parse(chosen), event.client))
+            self._variant_written = chosen  # read: the next keyframe shown may put its own variant back
 
     def _segmenter_chosen(self, event: viser.GuiEvent) -> None:
         if event.client is not None and self.segmenter is not None:

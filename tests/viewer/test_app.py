@@ -348,3 +348,52 @@ def test_ab_run_is_refused_for_an_engine_without_checkpoints(image_debugger) -> 
     d.wait_idle()
     assert d.engine_b is None and d.ab_variant.value == "off"
     assert "cannot be copied" in d.status.content
+
+
+def _page_chooses(d, name: str, *, age_s: float = 0.0) -> None:
+    """What viser does first when a page chooses `name` in the Variant menu: the menu's value
+    set (its callback, which reads it, runs later on viser's thread pool)."""
+    import time
+
+    d.variant._impl.value = name
+    d.variant._impl.update_timestamp = time.time() - age_s
+
+
+def _callback_runs(d) -> None:
+    """viser's thread pool runs the Variant menu's callback for a page's choice."""
+    import viser
+
+    d.controls._variant_chosen(viser.GuiEvent(client=object(), client_id=1, target=d.variant))  # type: ignore[arg-type]
+
+
+def test_a_variant_chosen_while_another_tab_plays_is_not_lost(sim_debugger) -> None:
+    """A keyframe shown between a page's choice and its callback (another tab playing) leaves
+    the choice in the menu, and the callback asks for it, not for the variant shown."""
+    d = sim_debugger
+    for _ in range(3):
+        d.submit("step")
+    d.wait_idle()
+    assert d.shown.variant == "PL-w"
+    _page_chooses(d, "P-r")
+    d.submit("step")  # shown before the callback has run
+    d.wait_idle()
+    assert d.shown.variant == "PL-w" and d.variant.value == "P-r"
+    _callback_runs(d)
+    d.wait_idle()
+    assert (d.shown.keyframe, d.shown.variant) == (3, "P-r")
+    assert d.variant.value == "P-r"
+    d.submit("step")  # the run goes on with the choice; the menu follows what is shown again
+    d.wait_idle()
+    assert d.shown.variant == "P-r" and d.variant.value == "P-r"
+
+
+def test_a_choice_whose_callback_never_ran_does_not_hold_the_menu(sim_debugger) -> None:
+    from viewer.controls import UNREAD_CHOICE_S
+
+    d = sim_debugger
+    d.submit("step")
+    d.wait_idle()
+    _page_chooses(d, "P-r", age_s=UNREAD_CHOICE_S + 1.0)  # its page closed before the callback
+    d.submit("step")
+    d.wait_idle()
+    assert d.shown.variant == "PL-w" and d.variant.value == "PL-w"
