@@ -10,8 +10,9 @@ engine's steps divided by the frames (the figure the goals are about; the next f
 detection runs on a worker thread meanwhile, so it is less than the sum of the stages).
 Per stage: the mean per frame (point D&M, tracking) or per keyframe (the rest), each the
 elapsed time of that stage on the thread that ran it (a wall-clock interval, not CPU time:
-on a busy 2-core machine it includes waiting for a core). Prints one table per case (median over the runs) and a summary;
-`--write` also puts them in docs/results/speed.md (its `bench-speed` block).
+on a busy 2-core machine it includes waiting for a core). Prints one table per case
+(median over the runs) and a summary; `--write` also puts them in docs/results/speed.md
+(its `bench-speed` block).
 
 Cases: `mh01` the real EuRoC MH_01 slice (300 pairs 752×480, ../shared/data, skipped when
 absent); `room` the rendered room (30 s at 20 Hz, 752×480); `street` the rendered street

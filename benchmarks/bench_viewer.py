@@ -37,7 +37,6 @@ import argparse
 import dataclasses
 import pathlib
 import platform
-import socket
 import statistics
 import subprocess
 import sys
@@ -46,6 +45,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the project and the browser test helpers
+from tests.viewer.raw_client import free_port  # without pytest, which the server does not load
 
 # Click Step and wait (in the page) until the "Shown" field differs from its old value;
 # returns [ms to the field change, ms to the next animation frame after it].
@@ -73,13 +73,6 @@ async (expected) => {
   while (input.value !== expected) { await new Promise(r => setTimeout(r, 1)); }
 }
 """
-
-
-def _free_port() -> int:
-    """A free local TCP port (without the test helpers: pytest is not the server's)."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def _rss_mib() -> float:
@@ -127,7 +120,7 @@ def _room_debugger(*, duration_s: float | None = None, history_mb: float | None 
 
     engine = make_engine(EngineConfig(scene="room", duration_s=duration_s or DEFAULT_DURATION_S, interactive=True))
     settings = ViewerSettings() if history_mb is None else ViewerSettings(history_mb=history_mb)
-    debugger = Debugger(engine, port=_free_port(), settings=settings)
+    debugger = Debugger(engine, port=free_port(), settings=settings)
     debugger.server.scene.configure_environment_map(hdri=None)
     return debugger
 
@@ -300,7 +293,7 @@ def memory_server(args: argparse.Namespace) -> None:
         from backend.pipeline.sim_engine import SimEngine, SimSettings
         from viewer.app import Debugger
 
-        debugger = Debugger(SimEngine(SimSettings(sequence=args.sequence)), port=_free_port())
+        debugger = Debugger(SimEngine(SimSettings(sequence=args.sequence)), port=free_port())
         debugger.server.scene.configure_environment_map(hdri=None)
     try:
         print(f"PORT {debugger.port}", flush=True)

@@ -35,7 +35,7 @@ def drawable_points(p_world: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, n
     next keyframe culls it) or not finite has no position to draw or export: it is left out
     of the snapshot as a culled one is, instead of becoming inf with a RuntimeWarning."""
     p = p_world[ids]
-    finite = np.all(np.isfinite(p) & (np.abs(p) <= np.finfo(np.float32).max), axis=1)
+    finite = np.all(np.abs(p) <= np.finfo(np.float32).max, axis=1)  # False for inf and NaN too
     if not finite.all():
         ids, p = ids[finite], p[finite]
     return ids, p.astype(np.float32)
