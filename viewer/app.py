@@ -30,9 +30,10 @@ from backend.pipeline.snapshot import FrameTrajectory, Snapshot
 from viewer import exports, panels
 from viewer.access import AccessSettings
 from viewer.commands import Command, unwrap
-from viewer.controls import AB_OFF, SEGMENTER_LABELS, ControlPanel, Segmented, set_value
+from viewer.controls import AB_OFF, SEGMENTER_LABELS, ControlPanel, Segmented
 from viewer.guard import start_server
 from viewer.history import SnapshotHistory
+from viewer.page_choice import set_value
 from viewer.scene import SceneView
 from viewer.session import Session
 from viewer.settings import ViewerSettings
@@ -334,7 +335,7 @@ class Debugger:
             self.scene.clear()
             self.slider.disabled = True
             self.slider.min, self.slider.max = 0, 1
-            set_value(self.slider, 0)
+            self.controls.slider_choice.set(0)
             set_value(self.keyframe_label, "none")
             for tab in self.tabs:
                 tab.clear()
@@ -353,7 +354,7 @@ class Debugger:
             self.slider.disabled = len(self.history) < 2
             self.slider.max = max(snapshot.keyframe, first + 1)
             self.slider.min = first
-            set_value(self.slider, snapshot.keyframe)
+            self.controls.show_keyframe(snapshot.keyframe)
             if len(self._play_times) >= 2 and self._playing.is_set():
                 span = self._play_times[-1] - self._play_times[0]
                 rate = (len(self._play_times) - 1) / span if span > 0 else float("nan")

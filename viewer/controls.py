@@ -6,9 +6,8 @@ debugger writes what it shows into them."""
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
-from typing import Protocol, TypeVar, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import viser
@@ -23,11 +22,11 @@ from viewer.commands import Command, FromClient
 from viewer.dense import DenseLayer
 from viewer.displacement_layer import DISPLACEMENT_OFF, DisplacementLayer
 from viewer.history import SnapshotHistory
+from viewer.page_choice import PageChoice, set_value
 from viewer.scene import SceneView
 from viewer.settings import ViewerSettings
 from viewer.status import StatusLine
 
-T = TypeVar("T")
 AB_OFF = "off"
 # The Segmenter menu: the oracle of rendered scenes reads the renderer's plane ids, and says so.
 SEGMENTER_LABELS: dict[SegmenterKind, str] = {
@@ -46,16 +45,6 @@ LAYERS = (
     ("ground_truth", "Ground truth"),
     ("ab", "A/B run (B)"),
 )
-
-
-UNREAD_CHOICE_S = 2.0  # how long a page's choice in the Variant menu waits for its callback (ControlPanel.show_variant)
-
-
-def set_value(handle: viser.GuiInputHandle[T], value: T) -> None:
-    """`handle.value = value`, with the value's type checked: viser defines the setter of
-    `value` apart from its getter (a method lies between them), so mypy takes the property
-    for read-only."""
-    handle.value = value  # type: ignore[misc]  # viser's setter, which mypy does not see (above)
 
 
 @runtime_checkable
@@ -103,7 +92,7 @@ class ControlPanel:
         self.status = gui.add_markdown(f"**{engine.source}**: ready, press Step or Play")
         with gui.add_folder("Run"):
             self.variant = gui.add_dropdown("Variant", VARIANT_NAMES, initial_value=str(engine.variant))
-            self._variant_written = str(engine.variant)  # what the server last put in the menu (show_variant)
+            self.variant_choice = PageChoice(self.variant)  # the variant shown, or a page's choice not yet read
             self.segmenter: viser.GuiDropdownHandle[str] | None = None
             if isinstance(engine, Segmented):  # image pipelines: plane instances from stereo, the network or (rendered) the truth
                 kinds = [SegmenterKind.GEOMETRIC, SegmenterKind.LEARNED]
@@ -117,6 +106,7 @@ class ControlPanel:
             self.achieved = gui.add_text("Achieved", initial_value="–", disabled=True)
             self.reset_button = gui.add_button("Reset")
             self.slider = gui.add_slider("Keyframe", min=0, max=1, step=1, initial_value=0, disabled=True)
+            self.slider_choice = PageChoice(self.slider)  # the keyframe shown, or where a page scrubbed to, not yet read
             self.keyframe_label = gui.add_text("Shown", initial_value="none", disabled=True)
             # Last in the folder, so that showing it moves nothing a user clicks.
             self.progress = gui.add_progress_bar(100.0, animated=True, visible=False)
@@ -198,29 +188,25 @@ class ControlPanel:
         if self.play.value:
             set_value(self.play, False)
         value = int(np.clip(int(self.slider.value) + delta, self.slider.min, self.slider.max))
-        set_value(self.slider, value)
+        self.slider_choice.set(value)
         self.actions.enqueue(Command.SHOW, value)
 
     def show_variant(self, variant: Variant | str) -> None:
         """Put `variant` in the Variant menu (the variant shown), unless a page has just chosen
-        another that its callback has not read yet. viser sets the menu's value when a page's
-        choice arrives and runs the callback later, on its thread pool, which reads the
-        value: a keyframe shown meanwhile (another tab playing) would overwrite the choice,
-        and the callback would then ask for the variant already shown, losing the user's.
-        A choice left unread for `UNREAD_CHOICE_S` (its page closed before viser ran the
-        callback) no longer holds the menu."""
-        name = str(variant)
-        if self.variant.value != self._variant_written and time.time() - self.variant.update_timestamp < UNREAD_CHOICE_S:
-            return  # a page's choice, not yet read
-        if self.variant.value != name:
-            set_value(self.variant, name)
-        self._variant_written = name
+        another that its callback has not read yet (viewer/page_choice.py: a keyframe shown
+        meanwhile, another tab playing, would otherwise lose the choice)."""
+        self.variant_choice.show(str(variant))
+
+    def show_keyframe(self, keyframe: int) -> None:
+        """Move the Keyframe slider to `keyframe` (the newest, stepped or re-optimized), unless
+        a page has just scrubbed it and its callback has not read where to (a keyframe
+        stepped meanwhile, with Play on, would otherwise take the user back to the newest)."""
+        self.slider_choice.show(int(keyframe))
 
     def _variant_chosen(self, event: viser.GuiEvent) -> None:
         if event.client is not None:
-            chosen = self.variant.value
+            chosen = self.variant_choice.take()
             self.actions.enqueue(Command.VARIANT, FromClient(Variant.parse(chosen), event.client))
-            self._variant_written = chosen  # read: the next keyframe shown may put its own variant back
 
     def _segmenter_chosen(self, event: viser.GuiEvent) -> None:
         if event.client is not None and self.segmenter is not None:
@@ -244,7 +230,7 @@ class ControlPanel:
         if event.client is not None:  # a user scrubs: stop playing, or the next step jumps back
             if self.play.value:
                 set_value(self.play, False)
-            self.actions.enqueue(Command.SHOW, int(self.slider.value))
+            self.actions.enqueue(Command.SHOW, int(self.slider_choice.take()))
 
     def _layer_callback(self, name: str, box: viser.GuiCheckboxHandle) -> Callable[[viser.GuiEvent], None]:
         def callback(_: viser.GuiEvent) -> None:

@@ -387,8 +387,58 @@ def test_a_variant_chosen_while_another_tab_plays_is_not_lost(sim_debugger) -> N
     assert d.shown.variant == "P-r" and d.variant.value == "P-r"
 
 
+def _page_scrubs(d, keyframe: int) -> None:
+    """What viser does first when a page moves the Keyframe slider: its value set (the
+    callback, which reads it, runs later on viser's thread pool)."""
+    import time
+
+    d.slider._impl.value = keyframe
+    d.slider._impl.update_timestamp = time.time()
+
+
+def _slider_callback_runs(d) -> None:
+    import viser
+
+    d.controls._slider_moved(viser.GuiEvent(client=object(), client_id=1, target=d.slider))  # type: ignore[arg-type]
+
+
+def test_a_scrub_while_a_step_is_shown_is_not_lost(sim_debugger) -> None:
+    """A page scrubs back while playing; a keyframe stepped before the slider's callback has
+    run leaves the slider where the user put it, and the callback shows that keyframe
+    (without the guard, the callback read the newest keyframe and the scrub was lost)."""
+    d = sim_debugger
+    for _ in range(4):
+        d.submit("step")
+    d.wait_idle()
+    assert d.shown.keyframe == 3 and d.slider.value == 3
+    _page_scrubs(d, 1)
+    d.submit("step")  # Play's next keyframe, shown before the callback has run
+    d.wait_idle()
+    assert d.shown.keyframe == 4 and d.slider.value == 1 and d.slider.max == 4
+    _slider_callback_runs(d)
+    d.wait_idle()
+    assert d.shown.keyframe == 1 and d.slider.value == 1
+    d.submit("step")  # the next step moves the slider to the newest again
+    d.wait_idle()
+    assert d.shown.keyframe == 5 and d.slider.value == 5
+
+
+def test_reset_moves_a_scrubbed_slider_back(sim_debugger) -> None:
+    d = sim_debugger
+    for _ in range(3):
+        d.submit("step")
+    d.wait_idle()
+    _page_scrubs(d, 1)
+    d.submit("reset")
+    d.wait_idle()
+    assert d.slider.value == 0 and d.slider.disabled
+    d.submit("step")
+    d.wait_idle()
+    assert d.shown.keyframe == 0 and d.slider.value == 0
+
+
 def test_a_choice_whose_callback_never_ran_does_not_hold_the_menu(sim_debugger) -> None:
-    from viewer.controls import UNREAD_CHOICE_S
+    from viewer.page_choice import UNREAD_CHOICE_S
 
     d = sim_debugger
     d.submit("step")
