@@ -86,11 +86,11 @@ class _SimulatedImu(NamedTuple):
 
 class _CachedFrame(NamedTuple):
     """What the pipeline reads of a rendered frame: both images (H, W) uint8 and the left
-    view's plane ids (H, W) int16."""
+    view's plane ids (H, W) int16 (None: not kept, nobody has asked for plane ids yet)."""
 
     left_image: np.ndarray
     right_image: np.ndarray
-    left_plane_id: np.ndarray
+    left_plane_id: np.ndarray | None
 
 
 class SyntheticSequence:
@@ -105,8 +105,9 @@ class SyntheticSequence:
     Rendering a pair (about 45 per second for the default rig) is
     faster than reading its PNGs back, so frames are not written anywhere: the last
     `cache_frames` frames read are kept in memory, what the pipeline asks for again (both
-    images and the left plane ids, 1.4 MB at 752×480: enough for the pipeline's read-ahead
-    of 8 frames and a keyframe's plane ids asked for after it); `views(i)`, with the depths,
+    images, 0.7 MB at 752×480: enough for the pipeline's read-ahead of 8 frames; and the left
+    plane ids, another 0.7 MB, once something has asked for them: the oracle segmenter asks
+    for a keyframe's just after it was read, nothing else does); `views(i)`, with the depths,
     renders anew. Each frame's image noise has its own seed, so any frame renders the same
     whenever it is asked for. The ground truth is the body's
     (`ground_truth_frame` "body", as `render` writes it to `state_groundtruth_estimate0`), the
@@ -141,6 +142,7 @@ class SyntheticSequence:
         self._cache: collections.OrderedDict[int, _CachedFrame] = collections.OrderedDict()
         self._cache_frames = cache_frames
         self._cache_lock = threading.Lock()
+        self._keep_plane_ids = False  # set by the first left_plane_ids (the oracle segmenter)
 
     def __len__(self) -> int:
         return int(self.timestamps_ns.shape[0])
@@ -224,7 +226,7 @@ class SyntheticSequence:
                 self._cache.move_to_end(index)
                 return cached
         left, right = self.views(index)
-        frame = _CachedFrame(left.image, right.image, left.plane_id)
+        frame = _CachedFrame(left.image, right.image, left.plane_id if self._keep_plane_ids else None)
         with self._cache_lock:
             self._cache[index] = frame
             while len(self._cache) > self._cache_frames:
@@ -245,8 +247,9 @@ class SyntheticSequence:
         just after it was read), else rendered without the images and not cached."""
         index = range(len(self))[index]
         with self._cache_lock:
+            self._keep_plane_ids = True
             cached = self._cache.get(index)
-        if cached is not None:
+        if cached is not None and cached.left_plane_id is not None:
             return cached.left_plane_id
         T = self.T_world_rect0[index]
         return render_view(self.scene, self.camera, T[:3, :3], T[:3, 3]).plane_id

@@ -126,7 +126,24 @@ def test_the_frame_cache_keeps_what_the_pipeline_reads_again() -> None:
     np.testing.assert_array_equal(seq.left_plane_ids(12), seq.views(12)[0].plane_id)  # not cached: rendered
     cached = list(seq._cache.values())
     assert len(cached) == 2
-    assert all(sum(a.nbytes for a in frame) <= 1.5 * 2**20 for frame in cached)
+    assert all(sum(a.nbytes for a in frame if a is not None) <= 1.5 * 2**20 for frame in cached)
+
+
+def test_plane_ids_are_kept_only_once_asked_for() -> None:
+    """A run without the oracle segmenter never asks for plane ids, and its cached frames
+    hold the two images only (0.7 MB at 752×480); once asked, frames read from then on keep
+    them, and every answer is the rendered view's."""
+    from backend.data.synthetic import SyntheticSequence
+
+    seq = SyntheticSequence(builtin_scene("room"), settings=SequenceSettings(duration_s=1.0), cache_frames=4)
+    for k in (1, 2):
+        seq.rectified_pair(k)
+    assert all(frame.left_plane_id is None for frame in seq._cache.values())
+    assert sum(a.nbytes for a in seq._cache[1] if a is not None) <= 0.75 * 2**20
+    np.testing.assert_array_equal(seq.left_plane_ids(2), seq.views(2)[0].plane_id)  # cached without them: rendered
+    seq.rectified_pair(3)
+    assert seq._cache[3].left_plane_id is not None
+    np.testing.assert_array_equal(seq.left_plane_ids(3), seq.views(3)[0].plane_id)
 
 
 def test_the_imu_is_simulated_when_first_read_and_the_same_whenever_read() -> None:
