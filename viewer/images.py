@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import io
 from collections.abc import Mapping
 from typing import Literal
 
@@ -73,6 +74,18 @@ def compare_image(structures: Mapping[Variant, HessianStructure], *, max_px: int
     images = [render_hessian(s.pattern, s.groups, max_px=max_px, legend=False, focus=True) for s in structures.values()]
     labels = [f"{name}\n{plural(s.items, 'item')}, {plural(s.params, 'param')}" for name, s in structures.items()]
     return np.asarray(render_side_by_side(images, labels=labels, font_px=18))
+
+
+def compare_png(structures: Mapping[Variant, HessianStructure]) -> bytes:
+    """:func:`compare_image` encoded as PNG (the bytes the page is sent; ~30 times smaller
+    than the pixels, so kept comparisons are kept encoded)."""
+    return _encode_image_binary(compare_image(structures), "png")[1]
+
+
+def decode_png(data: bytes) -> np.ndarray:
+    """RGB image (H, W, 3) uint8 of PNG bytes."""
+    with Image.open(io.BytesIO(data)) as image:
+        return np.asarray(image.convert("RGB"))
 
 
 def plural(count: int, word: str) -> str:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 
-import numpy as np
 import viser
 
 from backend.optim.structure import HessianStructure
@@ -28,9 +27,11 @@ class HessianTab:
         self._compare_initially = settings.compare
         self._encoded = images.EncodedHessians()
         self._shown_structure: HessianStructure | None = None  # rendered again only to show it large
-        # (keyframe, with lines) -> the comparison image: computed once, from the step's state;
-        # the newest COMPARES_KEPT of the keyframes the history keeps (an image is ~0.5 MB)
-        self._compares: dict[tuple[int, bool], np.ndarray] = {}
+        # (keyframe, with lines) -> the comparison image, PNG: computed once, from the step's
+        # state; the newest COMPARES_KEPT of the keyframes the history keeps (the pixels are
+        # ~0.5 MB, the PNG a few tens of kB: sent as it is, decoded only to show it large)
+        self._compares: dict[tuple[int, bool], bytes] = {}
+        self._compare_shown: bytes | None = None
 
     def build(self, gui: viser.GuiApi) -> None:
         self.legend = gui.add_markdown("no window optimized yet")
@@ -53,7 +54,7 @@ class HessianTab:
         self._compares = {}
         self.image.image = images.blank()
         self.legend.content = "no window optimized yet"
-        self.compare_image.image = images.blank()
+        self._show_compare(None)
         self.compare_note.content = ""
 
     def update_compare(
@@ -75,21 +76,27 @@ class HessianTab:
         if image is None and shown.keyframe == newest:
             structures = compute(shown.variant.family())
             if structures:
-                image = self._compares[key] = images.compare_image(structures)
+                image = self._compares[key] = images.compare_png(structures)
         kept = sorted(k for k in self._compares if k[0] >= first_kept)[-COMPARES_KEPT:]
         self._compares = {k: self._compares[k] for k in kept}
+        self._show_compare(image)
         if image is None and replay:
-            self.compare_image.image = images.blank()
             self.compare_note.content = f"*not in the recording for keyframe {shown.keyframe} ({'PL' if shown.variant.with_lines else 'P'}): it was kept before Record was ticked, or not made*"
         elif image is None:
-            self.compare_image.image = images.blank()
             self.compare_note.content = (
                 f"*not kept for keyframe {shown.keyframe}: the comparison is made at the newest keyframe, from the state its step left, "
                 f"while this box is on, and kept for the last {COMPARES_KEPT} keyframes*"
             )
         else:
-            self.compare_image.image = image
             self.compare_note.content = f"keyframe {shown.keyframe}'s window as its step left it, under each plane mode of {'PL' if shown.variant.with_lines else 'P'}"
+
+    def _show_compare(self, png: bytes | None) -> None:
+        """The comparison image sent as it was encoded (None: blank)."""
+        if png is None:
+            self.compare_image.image = images.blank()
+        elif png is not self._compare_shown:
+            images.set_encoded(self.compare_image, png, image_format="png")
+        self._compare_shown = png
 
     def enlarge(self, client: viser.ClientHandle | None) -> None:
         """Open the shown window's Hessian large for `client` (viewer/tabs/base.py
@@ -110,7 +117,8 @@ class HessianTab:
             zoom.append(gui.add_dropdown("Zoom on", tuple(choices), initial_value="whole window", hint="Show a group's block alone, or two groups with their coupling blocks"))
 
         window = images.large_hessian_image(structure)
-        shown = open_large_view(client, [(LARGE_LABEL, window), ("this keyframe's window under -wo | -r | -w", self.compare_image.image)], image_format="png", controls=controls)
+        compare = images.blank() if self._compare_shown is None else images.decode_png(self._compare_shown)
+        shown = open_large_view(client, [(LARGE_LABEL, window), ("this keyframe's window under -wo | -r | -w", compare)], image_format="png", controls=controls)
         zoom[0].on_update(lambda _: setattr(shown[0], "image", images.large_hessian_image(structure, kinds=choices[str(zoom[0].value)])))
 
 
