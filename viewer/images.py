@@ -77,7 +77,7 @@ def compare_image(structures: Mapping[Variant, HessianStructure], *, max_px: int
 
 
 def compare_png(structures: Mapping[Variant, HessianStructure]) -> bytes:
-    """:func:`compare_image` encoded as PNG (the bytes the page is sent; ~30 times smaller
+    """:func:`compare_image` encoded as PNG (the bytes the page is sent; 15-20 times smaller
     than the pixels, so kept comparisons are kept encoded)."""
     return _encode_image_binary(compare_image(structures), "png")[1]
 
