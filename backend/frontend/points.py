@@ -107,9 +107,9 @@ def detect_points(image: np.ndarray, *, settings: PointSettings = PointSettings(
         kps, desc = orb.detectAndCompute(image, None)
     if desc is None or len(kps) == 0:
         return Keypoints(uv=np.zeros((0, 2)), descriptors=np.zeros((0, 32), np.uint8), octave=np.zeros(0, np.int32))
-    uv = np.array([kp.pt for kp in kps], dtype=float)
-    response = np.array([kp.response for kp in kps])
-    octave = np.array([kp.octave for kp in kps], dtype=np.int32)
+    uv = cv2.KeyPoint_convert(kps).astype(float)  # float32 positions, as kp.pt holds them
+    response = np.fromiter((kp.response for kp in kps), dtype=float, count=len(kps))
+    octave = np.fromiter((kp.octave for kp in kps), dtype=np.int32, count=len(kps))
     h, w = image.shape[:2]
     cell = np.minimum((uv[:, 1] * s.grid_rows / h).astype(int), s.grid_rows - 1) * s.grid_cols + np.minimum((uv[:, 0] * s.grid_cols / w).astype(int), s.grid_cols - 1)
     order = np.lexsort((-response, cell))  # by cell, strongest first

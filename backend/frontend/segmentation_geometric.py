@@ -158,11 +158,21 @@ def _fit(u: np.ndarray, v: np.ndarray, d: np.ndarray) -> np.ndarray | None:
         return None
     uc, vc, dc = u.mean(), v.mean(), d.mean()  # centred for conditioning
     du, dv, dd = u - uc, v - vc, d - dc
-    M = np.array([[du @ du, du @ dv], [du @ dv, dv @ dv]])
-    if np.linalg.cond(M) > 1e8:
+    M = np.array([[du @ du, du @ dv], [du @ dv, dv @ dv]])  # float32 for the float32 grids, solved as such
+    if _condition_2x2(float(M[0, 0]), float(M[0, 1]), float(M[1, 1])) > 1e8:
         return None
     a, b = np.linalg.solve(M, [du @ dd, dv @ dd])
     return np.array([a, b, dc - a * uc - b * vc])
+
+
+def _condition_2x2(a: float, b: float, c: float) -> float:
+    """2-norm condition number of the symmetric positive semi-definite matrix [[a, b], [b, c]]
+    (its eigenvalues' ratio, in closed form: `np.linalg.cond`'s SVD of a 2×2 costs more than
+    the rest of a region's fit; inf when singular)."""
+    mean = 0.5 * (a + c)
+    radius = float(np.hypot(0.5 * (a - c), b))
+    low = mean - radius
+    return (mean + radius) / low if low > 0.0 else float("inf")
 
 
 def _curved(u: np.ndarray, v: np.ndarray, d: np.ndarray, model: np.ndarray, *, ratio: float, samples: int = 4000) -> bool:

@@ -74,6 +74,26 @@ def test_a_textured_image_keeps_the_usual_threshold() -> None:
     np.testing.assert_array_equal(a.descriptors, b.descriptors)
 
 
+def test_keypoints_are_orbs_own_positions_octaves_and_descriptors() -> None:
+    """Each kept keypoint is one ORB found: its position (float32, as OpenCV holds it), its
+    octave and its descriptor, and the strongest ORB keypoint is among them."""
+    import cv2
+
+    from backend.frontend.points import PointSettings, detect_points
+
+    rng = np.random.default_rng(8)
+    image = cv2.GaussianBlur((rng.random((480, 752)) * 255).astype(np.uint8), (3, 3), 0)
+    s = PointSettings()
+    orb = cv2.ORB_create(nfeatures=int(s.oversample * s.n_features), scaleFactor=s.scale_factor, nlevels=s.n_levels, fastThreshold=s.fast_threshold, edgeThreshold=19, patchSize=31)
+    kps, desc = orb.detectAndCompute(image, None)
+    found = detect_points(image, settings=s)
+    assert 0 < len(found.uv) <= s.n_features and found.uv.dtype == np.float64 and found.octave.dtype == np.int32
+    by_position = {(np.float32(kp.pt[0]), np.float32(kp.pt[1]), kp.octave): k for k, kp in enumerate(kps)}
+    index = [by_position[(np.float32(u), np.float32(v), int(o))] for (u, v), o in zip(found.uv, found.octave)]
+    np.testing.assert_array_equal(found.descriptors, desc[index])
+    assert int(np.argmax([kp.response for kp in kps])) in index
+
+
 def _best_matches_by_sorting(rows: np.ndarray, cols: np.ndarray, dist: np.ndarray, *, n_rows: int, max_distance: float, ratio: float) -> np.ndarray:
     """The definition, by sorting (the implementation before the compiled pass)."""
     out = np.full(n_rows, -1, dtype=np.int64)

@@ -15,7 +15,7 @@ from backend.data.euroc import read_indexed_poses
 from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
 from backend.frontend.segmentation import NO_PLANE, PlaneMasks, PlaneSegmenter
-from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter, affine_disparity_to_plane, plane_to_affine_disparity
+from backend.frontend.segmentation_geometric import GeometricPlaneSegmenter, _condition_2x2, affine_disparity_to_plane, plane_to_affine_disparity
 from backend.geometry.camera import PinholeCamera
 
 PAIRS = pathlib.Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "euroc_v101_pairs" / "ForLoopClosureDetector"
@@ -174,3 +174,15 @@ def test_the_flood_grows_the_component_the_whole_image_pass_would() -> None:
         assert not mark.any()  # the scratch is left clean for the next flood
         ties += tie
     assert ties >= 10, ties  # the tie-break was exercised
+
+
+def test_the_fits_condition_number_is_numpys() -> None:
+    """The region fit's closed-form condition number of its 2×2 normal matrix agrees with
+    `np.linalg.cond`, down to the singular matrices it rejects."""
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        A = rng.normal(size=(50, 2)) * rng.uniform(1e-3, 1e3, size=2)
+        M = A.T @ A
+        assert _condition_2x2(M[0, 0], M[0, 1], M[1, 1]) == pytest.approx(np.linalg.cond(M), rel=1e-6)
+    assert _condition_2x2(4.0, 2.0, 1.0) == float("inf")  # rank one: u and v along one line
+    assert _condition_2x2(0.0, 0.0, 0.0) == float("inf")
