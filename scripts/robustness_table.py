@@ -5,6 +5,7 @@ runs that fail the goals, lost frames, re-initializations, restarts of the VIO s
 ATE (median, largest), and for VIO the initialization time and the scale error.
 
     .venv/bin/python scripts/robustness_table.py [--seeds 2-4] [--scenes room,...] [--speeds ...] [--out DIR] [--workers N | --serial]
+    .venv/bin/python scripts/robustness_table.py --default-speed [--variants PL-w] ...   # speed 1 alone, its own table
 
 Seeds 0-1 are for tuning; the table reports seeds 2-4 by default (`--seeds` replaces them).
 The goals (issue 26), per run: stereo 0 lost frames and 0 re-initializations; VIO
@@ -15,7 +16,10 @@ street) the ATE goal is 1 % of the path instead. A run that is never excited tha
 cannot be expected to start: it is listed with "never excited" among its misses. Restarts of
 the VIO start (its structure from motion beginning again from a later frame, before any pose
 is output) are shown, not counted as misses: they cost start time, which its goal measures.
-Writes docs/pipeline/robustness.json and the robustness-table block.
+Writes docs/pipeline/robustness.json and the robustness-table block; with `--default-speed`
+(speed 1 alone, the speed `coplanar run` moves at unless told otherwise)
+docs/pipeline/robustness_default.json and the robustness-default block instead, so that the
+subset table over all speeds stays.
 """
 
 from __future__ import annotations
@@ -123,7 +127,7 @@ def _onsets(runs: list[dict]) -> str:
     return f"{f(statistics.median(known), 1)} / {f(max(known), 1)}" + (f" ({never} never)" if never else "")
 
 
-def table(outcomes: list[dict]) -> str:
+def table(outcomes: list[dict], *, command: str = ".venv/bin/python scripts/robustness_table.py") -> str:
     groups: dict[tuple, list[dict]] = {}
     for o in outcomes:
         groups.setdefault((o["mode"], o["scene"], o["speed"], o["variant"]), []).append(o)
@@ -131,7 +135,7 @@ def table(outcomes: list[dict]) -> str:
     durations = ", ".join(f"{d:g}" for d in sorted({o["duration_s"] for o in outcomes if o["duration_s"] is not None}))
     failing = sum(bool(o["misses"]) for o in outcomes)
     lines = [
-        f"Seeds {', '.join(map(str, seeds))} (changes are tuned on seeds 0-1), {durations} s each, `.venv/bin/python scripts/robustness_table.py`: "
+        f"Seeds {', '.join(map(str, seeds))} (changes are tuned on seeds 0-1), {durations} s each, `{command}`: "
         f"**{len(outcomes) - failing} of {len(outcomes)} runs meet the goals**. Per cell over the seeds: runs missing a goal, lost frames and "
         "re-initializations (sums), ATE after SE(3) alignment (cm, median / worst), and for VIO restarts of the start (shown, not a goal: they cost start time), the excitation onset "
         "(s from the first frame; the first second whose true acceleration averages 0.25 m/s², VINS-Mono's threshold; median / latest; "
@@ -163,14 +167,25 @@ def main() -> int:
     p.add_argument("--modes", default=None, help=f"modes (default: {SWEEP.name}'s, stereo,vio)")
     p.add_argument("--variants", default=None, help=f"variants (default: {SWEEP.name}'s, P-wo,PL-w)")
     p.add_argument("--duration", default=None, help=f"seconds of motion (default: {SWEEP.name}'s, 30)")
+    p.add_argument("--default-speed", action="store_true", help="speed 1 alone (coplanar run's default), into its own table (the robustness-default block) and docs/pipeline/robustness_default.json")
     add_sweep_options(p, page="docs/results/robustness.md")
     args = p.parse_args()
+    command = ".venv/bin/python scripts/robustness_table.py"
+    if args.default_speed:
+        if args.speeds not in (None, "1"):
+            p.error("--default-speed runs speed 1 alone: leave --speeds out")
+        args.speeds = "1"
+        command += " --default-speed"
+    for flag, value in (("--seeds", None if args.seeds == REPORT_SEEDS else args.seeds), ("--variants", args.variants), ("--modes", args.modes), ("--scenes", args.scenes)):
+        if value is not None:
+            command += f" {flag} {value}"
     options = axis_options({"--seeds": args.seeds, "--scenes": args.scenes, "--speeds": args.speeds, "--modes": args.modes, "--variants": args.variants, "--duration": args.duration})
     failed: list[dict] = []
     outcomes = [outcome(r) for r in sweep_runs(SWEEP, args, options, keep=("groundtruth.txt",), failed=failed)]
     outcomes += [crashed(row) for row in failed]
-    body = table(outcomes)
-    return publish({"seeds": args.seeds, "runs": outcomes}, body, json_name="robustness.json", block="robustness-table", write_doc=not args.no_doc)
+    body = table(outcomes, command=command)
+    json_name, block = ("robustness_default.json", "robustness-default") if args.default_speed else ("robustness.json", "robustness-table")
+    return publish({"seeds": args.seeds, "speeds": args.speeds, "runs": outcomes}, body, json_name=json_name, block=block, write_doc=not args.no_doc)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,6 @@ only: JPEG blurs a one-pixel pattern), and the keyframe's left image with its fe
 from __future__ import annotations
 
 import collections
-import dataclasses
 import io
 from collections.abc import Mapping
 from typing import Literal
@@ -176,8 +175,7 @@ def substructure(structure: HessianStructure, kinds: tuple[str, ...]) -> Hessian
     for g in chosen:
         groups.append(HessianGroup(kind=g.kind, start=start, size=g.size, items=g.items))
         start += g.size
-    pattern = structure.pattern[index][:, index]
-    return dataclasses.replace(structure, pattern=pattern, groups=tuple(groups))
+    return HessianStructure.of(structure.variant, structure.pattern[index][:, index], tuple(groups))
 
 
 def _group_spans(matrix: np.ndarray) -> list[tuple[int, int]]:

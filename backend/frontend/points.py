@@ -107,7 +107,7 @@ def detect_points(image: np.ndarray, *, settings: PointSettings = PointSettings(
         kps, desc = orb.detectAndCompute(image, None)
     if desc is None or len(kps) == 0:
         return Keypoints(uv=np.zeros((0, 2)), descriptors=np.zeros((0, 32), np.uint8), octave=np.zeros(0, np.int32))
-    uv = cv2.KeyPoint_convert(kps).astype(float)  # float32 positions, as kp.pt holds them
+    uv = cv2.KeyPoint_convert(kps).astype(float)  # type: ignore[attr-defined]  # not in OpenCV's stubs; float32 positions, as kp.pt holds them
     response = np.fromiter((kp.response for kp in kps), dtype=float, count=len(kps))
     octave = np.fromiter((kp.octave for kp in kps), dtype=np.int32, count=len(kps))
     h, w = image.shape[:2]

@@ -4,7 +4,8 @@
 A snapshot is a tree of frozen dataclasses (`backend.pipeline.snapshot`). :func:`encode`
 turns it into a JSON-able tree in which every NumPy array is replaced by a reference into
 a dict of arrays (written as one `.npz`), every byte string (the keyframe's JPEG) by a
-reference into a dict of blobs, and every SciPy sparse matrix (the Hessian's pattern) by its
+reference into a dict of blobs, and every SciPy sparse matrix (the Hessian's pattern, which a
+snapshot keeps packed and which is written unpacked, as before it was packed) by its
 CSR arrays. Dataclasses are written as `{"type": NAME, "fields": {...}}` and only the types
 named in :data:`TYPES` are read back, so a file cannot make the reader build anything else.
 Non-finite floats are written as JSON's common extension (`NaN`, `Infinity`), which Python,
@@ -84,6 +85,9 @@ def _encode(value: object, path: str, out: Encoded) -> Any:
         return {"csr": path, "shape": list(csr.shape)}
     if isinstance(value, enum.Enum):  # before str: a Variant is a str too
         return {"enum": type(value).__name__, "value": value.value}
+    if isinstance(value, HessianStructure):  # kept packed, written as its pattern's CSR arrays (as before it was packed)
+        fields = {"variant": value.variant, "pattern": value.pattern, "groups": value.groups}
+        return {"type": "HessianStructure", "fields": {name: _encode(v, _join(path, name), out) for name, v in fields.items()}}
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         name = type(value).__name__
         if TYPES.get(name) is not type(value):
@@ -155,8 +159,10 @@ def _decode(node: Any, enc: Encoded, where: str) -> Any:
             raise CodecError(f"{where or 'the root'}: {node['type']} without fields")
         values = {name: _decode(v, enc, _join(where, name)) for name, v in fields.items()}
         try:
+            if cls is HessianStructure:
+                return HessianStructure.of(**values)
             return cls(**values)
-        except TypeError as e:
+        except (TypeError, ValueError) as e:
             raise CodecError(f"{where or 'the root'}: {node['type']} does not fit ({e})") from None
     raise CodecError(f"{where or 'the root'}: unexpected object with keys {sorted(node)[:4]}")
 
