@@ -29,7 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--share", action="store_true", help="show viser's share button: a public address through viser's relay (off: share requests are dropped)")
     p.add_argument("--history", type=int, default=500, help="snapshots kept for the keyframe slider (default 500)")
-    p.add_argument("--history-mb", type=float, default=70.0, help="at most this many MiB of kept snapshots (oldest dropped first; default 70)")
+    p.add_argument("--history-mb", type=float, default=60.0, help="at most this many MiB of kept snapshots (oldest dropped first; default 60)")
     p.add_argument("--play", action="store_true", help="start playing at once")
     p.add_argument("--sweep", default=None, metavar="DIR", help="also show the results of `coplanar sweep --out DIR` (its Sweep tab)")
     p.add_argument(

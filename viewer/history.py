@@ -23,7 +23,7 @@ import scipy.sparse as sp
 from backend.optim.variant import Variant
 from backend.pipeline.snapshot import Snapshot
 
-DEFAULT_MAX_BYTES = 70 * 2**20  # as ViewerSettings.history_mb
+DEFAULT_MAX_BYTES = 60 * 2**20  # as ViewerSettings.history_mb
 
 
 def arrays_of(value: object, *, _depth: int = 0) -> Iterator[np.ndarray | bytes]:

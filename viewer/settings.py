@@ -16,7 +16,7 @@ class ViewerSettings:
     sweep` output folder the Sweep tab shows (None: none)."""
 
     history: int = 500
-    history_mb: float = 70.0  # as deep as 100 MiB was with float64 points (docs/results/debugger.md)
+    history_mb: float = 60.0  # as deep as 70 MiB was before the Hessian patterns were packed (43 keyframes after 500 steps of room; docs/results/debugger.md)
     rate_hz: float = 5.0
     compare: bool = True
     plots: bool = True
