@@ -3,7 +3,7 @@ H = JᵀJ, for the viewer's live sparsity image and `coplanar sim --hessian-dir`
 
 Every snapshot keeps its window's pattern, and the debugger keeps tens of snapshots, so the
 pattern is kept packed (:class:`PackedPattern`: its CSR index arrays differenced and
-deflated, about 35 times smaller than the boolean CSR matrix) and unpacked, exactly, where
+deflated, 14-33 times smaller than the boolean CSR matrix on room) and unpacked, exactly, where
 it is drawn."""
 
 from __future__ import annotations
