@@ -97,8 +97,7 @@ def hessian_structure(problem: Problem, state: State | None = None) -> HessianSt
     state = problem.initial_state() if state is None else state
     J = problem.linearize(state).jacobian
     H = (J.T @ J).tocsr()
-    H.eliminate_zeros()
-    pattern = sp.csr_matrix((np.ones(H.nnz, dtype=bool), H.indices, H.indptr), shape=H.shape)
+    H.eliminate_zeros()  # the numeric pattern: what packing keeps of H is its index arrays
     L = problem.layout
     groups = tuple(HessianGroup(kind=name, start=L.group_start[name], size=L.group_size[name], items=L.group_items[name]) for name in GROUPS)
-    return HessianStructure.of(problem.variant, pattern, groups)
+    return HessianStructure.of(problem.variant, H, groups)
