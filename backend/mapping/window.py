@@ -59,10 +59,14 @@ def assemble_window(
     fix_first: bool,
     keep_landmarks: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
     extra_planes: np.ndarray | None = None,
+    pinned: np.ndarray | None = None,
 ) -> Window:
     """The window of keyframes [w0, k] (module docstring). `keep_landmarks`: masks over the
     landmarks the window's keyframes observe (points, lines) -> those the problem keeps (None:
-    all). `fix_first`: hold the first pose as the gauge when no older keyframe is held."""
+    all). `fix_first`: hold the first pose as the gauge when no older keyframe is held.
+    `pinned`: keyframes whose pose is held wherever they are in the window (the stereo
+    engine's keyframes placed by optical flow: no observation ties them to the keyframes
+    before them, so the solve would move them with their own few landmarks)."""
     cam = the_map.camera
     P, Lm = the_map.points, the_map.lines
     win = [the_map.observations[j] for j in range(w0, k + 1)]
@@ -96,7 +100,9 @@ def assemble_window(
     kfs = np.unique(np.concatenate([kf_p, kf_l, np.arange(w0, k + 1)]))
     local = np.searchsorted
     fixed = kfs < w0
-    if not np.any(fixed) and fix_first:
+    if pinned is not None and len(pinned):
+        fixed |= np.isin(kfs, pinned)
+    if not np.any(kfs < w0) and fix_first:
         fixed[0] = True  # the gauge: the segment's first keyframe
     # Stereo: each right-image observation is a second camera `baseline` to the right.
     offset = cam.offset_right

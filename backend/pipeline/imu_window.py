@@ -131,6 +131,10 @@ class InertialWindow:
         """Before the initialization the first pose is the gauge; after it, the prior is."""
         return not self.state.initialized
 
+    def pinned_poses(self) -> None:
+        """None: VIO places every keyframe against the map or by the IMU."""
+        return None
+
     def problem_data(self, window: Window) -> ProblemData:
         """Before the initialization the scale gauge; after it the IMU factors and the prior."""
         data, kfs, st, the_map = window.data, window.kf, self.state, self.map

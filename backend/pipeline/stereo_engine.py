@@ -69,6 +69,7 @@ from backend.optim.variant import Variant
 from backend.pipeline.core import CoreEngine, PipelineCore, visual_window_range
 from backend.pipeline.overlay import POINT_NEW, POINT_OUTLIER, POINT_TRACKED, POINT_UNUSED
 from backend.pipeline.snapshot import Snapshot, Tracking
+from backend.pipeline.stages.flow_track import FlowReference, track_by_flow
 from backend.pipeline.stages.fuse import fuse_points
 from backend.pipeline.stages.solve import VisualWindow, WindowExtension
 from backend.pipeline.stages.track import Tracked, kept_in_view_next
@@ -94,14 +95,18 @@ class StereoEngine(CoreEngine):
 
         self.settings = settings
         self.core = PipelineCore(source, settings=settings, name=name, segmenter=segmenter if segmenter is not None else GeometricPlaneSegmenter(), plan=self, on_frame=on_frame)
+        self._flow_reference: FlowReference | None = None  # the last placed frame (stages.flow_track)
+        self._pinned: tuple[int, ...] = ()  # keyframes placed by flow: their poses held in the window
 
     # Checkpoints (backend.pipeline.engine.EngineCheckpoint): the core checkpoints itself; the
     # engine holds nothing else but its settings.
-    STATE: tuple[str, ...] = ()
+    STATE: tuple[str, ...] = ("_flow_reference", "_pinned")  # the reference is immutable: a checkpoint shares it
     SHARED: tuple[str, ...] = ("settings",)
 
     def reset(self) -> None:
         self.core.reset()
+        self._flow_reference = None
+        self._pinned = ()
 
     @single_threaded_blas
     def step(self) -> Snapshot:
@@ -121,6 +126,8 @@ class StereoEngine(CoreEngine):
                 reason = "first frame"
             else:
                 tracked = c.track(i, kp, predicted=c.constant_velocity(i), verify_below=self._verify_below(), left=left)
+                if not tracked.ok:
+                    tracked = self._placed_by_flow(i, left, tracked)
                 reason = self._keyframe_reason(i, kp, tracked)
             timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
             c.remember_frame(i, tracked.R, tracked.t)
@@ -135,12 +142,28 @@ class StereoEngine(CoreEngine):
                     reason = "re-initialization"
                 else:
                     continue
+            if s.flow_track is not None:
+                self._flow_reference = FlowReference.of(i, left, right, tracked.R, tracked.t)
             if reason:
                 break
             c.map.record_frame(i, self.keyframes - 1, tracked.R, tracked.t)
         return self._keyframe(i, left, right, kp, tracked, timing, t_start, frames=frames, lost=lost, reinitializations=reinitializations, message="; ".join(messages), reason=reason)
 
     # ------------------------------------------------------------------ tracking
+
+    def _placed_by_flow(self, i: int, left: np.ndarray, lost: Tracked) -> Tracked:
+        """Frame i, which the map could not place (`lost`), placed by optical flow from the
+        last placed frame (`stages.flow_track`); `lost` itself where that fails too or is
+        off (`flow_track` None) or no frame was placed yet in this run."""
+        s = self.settings
+        reference = self._flow_reference
+        if s.flow_track is None or reference is None:
+            return lost
+        pose = track_by_flow(self.core.camera, reference, left, settings=s.flow_track, seed=s.seed + i)
+        if not pose.ok:
+            return lost
+        self.core.messages.append(f"frame {i}: placed by optical flow from frame {reference.frame} ({pose.inliers} inliers; the map could not place it)")
+        return Tracked(pose.R_world_camera, pose.t_world_camera, np.full(len(self.core.local_points), -1, np.int64), 0, True, by_flow=True)
 
     def _verify_below(self) -> int:
         """The inliers below which the motion model's pose is checked against PnP (the
@@ -162,6 +185,8 @@ class StereoEngine(CoreEngine):
         gap = i - last_kf
         stamps = c.data_source.timestamps_ns
         min_gap, min_fallback_gap = s.keyframe_gap_frames(1e-9 * float(stamps[i] - stamps[last_kf]) / max(gap, 1))  # the mean frame period since the keyframe
+        if tracked.by_flow:  # the map could not place it: new landmarks from its stereo once there are enough to build on
+            return "placed by flow" if gap >= min_fallback_gap and len(kp.uv) >= 3 * s.min_tracking_inliers else ""
         new_fraction = 1.0 - tracked.inliers / max(len(kp.uv), 1)
         if gap >= min_gap and tracked.inliers > s.min_tracked_points and new_fraction >= s.min_new_fraction:
             return "rule"
@@ -236,6 +261,8 @@ class StereoEngine(CoreEngine):
 
         # 3. The keyframe, its observations and new landmarks.
         t0 = time.perf_counter()
+        if tracked.by_flow:
+            self._pinned = (*self._pinned, k)
         status = np.full(len(kp.uv), POINT_UNUSED, np.uint8)
         status[tracked.match[tracked.match >= 0]] = POINT_OUTLIER if len(tracked.match) == len(local_p) else POINT_UNUSED
         c.add_keyframe(i, R, t)
@@ -248,6 +275,8 @@ class StereoEngine(CoreEngine):
         # 4. Plane segmentation and co-planar detection, 5. window bundle adjustment, 6. culling.
         masks, detection, report, hessian = c.detect_and_solve(k, i, obs, new_points, new_lines, rng, timing, planes=plane_job)
         c.follow_keyframe(i, k)  # the motion model continues from the optimized keyframe pose
+        if s.flow_track is not None:  # and so does the flow's reference
+            self._flow_reference = FlowReference.of(i, left, right, c.map.R_world_keyframe[k], c.map.t_world_keyframe[k])
 
         image = None
         if s.image_scale is not None:
@@ -348,8 +377,8 @@ class StereoEngine(CoreEngine):
         return visual_window_range(self.core.map, k, window=s.window, fixed_horizon=s.fixed_horizon)
 
     def window_extension(self) -> WindowExtension:
-        """Nothing beyond the visual window (VIO: its inertial part)."""
-        return VisualWindow()
+        """The visual window (VIO adds its inertial part), the keyframes placed by flow held."""
+        return VisualWindow(np.asarray(self._pinned, np.int64))
 
     def finish_snapshot(self, snapshot: Snapshot, k: int) -> Snapshot:
         return snapshot

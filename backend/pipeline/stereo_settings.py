@@ -14,6 +14,7 @@ from backend.geometry.camera import PinholeCamera
 from backend.mapping import coplanar
 from backend.optim.solver import Damping
 from backend.optim.variant import Variant
+from backend.pipeline.stages.flow_track import FlowTrackSettings
 from backend.pipeline.stages.fuse import FuseSettings
 
 
@@ -59,7 +60,12 @@ class StereoSettings:
     (`backend.pipeline.prefetch`; the outputs are the same either way). `fuse`: at a
     keyframe, the local map's points that tracking left unmatched are searched again among
     its free stereo keypoints and re-observed instead of duplicated (`stages.fuse`,
-    ORB-SLAM's Fuse; None: off; stereo keyframes only, VIO's monocular ones are not fused)."""
+    ORB-SLAM's Fuse; None: off; stereo keyframes only, VIO's monocular ones are not fused).
+    `flow_track`: a frame that neither tracking nor relocalization places is placed by
+    optical flow from the last placed frame (`stages.flow_track`: corners with stereo depth
+    followed into it, EPnP-RANSAC; a bare wall's grain, which ORB misses) and becomes a
+    keyframe once `min_fallback_gap_s` has passed; None: such a frame is lost (stereo
+    only: VIO has no right image)."""
 
     variant: Variant = Variant.PL_W
     window: int = 10
@@ -100,6 +106,7 @@ class StereoSettings:
     lines: LineSettings = LineSettings()
     coplanar: coplanar.CoplanarSettings = coplanar.CoplanarSettings()
     fuse: FuseSettings | None = FuseSettings()
+    flow_track: FlowTrackSettings | None = FlowTrackSettings()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "variant", Variant.parse(self.variant))  # a name given as text is parsed here, once

@@ -67,6 +67,7 @@ class VioSettings(StereoSettings):
     fixed_horizon: int = 10  # before the initialization only; after it the prior replaces it
     min_keyframe_observations: int = 3  # a two-view point must be seen once more to stay
     far_min_disparity_px: float | None = None  # VIO triangulates, it has no stereo depth
+    flow_track: None = None  # the stereo engine's flow fallback needs the right image (VIO follows features its own way)
     damping: Damping = Damping.MARQUARDT  # Nielsen's rule damped the scale too long (CHANGELOG, issue 27)
     keyframe_parallax_px: float = 20.0
     max_keyframe_interval_s: float = 0.3

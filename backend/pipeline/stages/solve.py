@@ -35,6 +35,9 @@ class WindowExtension(Protocol):
     def fix_first_pose(self) -> bool:
         """Whether the first window pose is held as the gauge when no older one is."""
 
+    def pinned_poses(self) -> np.ndarray | None:
+        """Keyframes whose pose the window holds wherever they are (None: none)."""
+
     def problem_data(self, window: Window) -> ProblemData:
         """The window's data as solved (e.g. with inertial factors)."""
 
@@ -42,8 +45,15 @@ class WindowExtension(Protocol):
         """Called with the solution after the map is updated (e.g. velocities, biases, marginalization)."""
 
 
+@dataclasses.dataclass(frozen=True)
 class VisualWindow:
-    """The plain visual window: every observed landmark, the first pose as the gauge."""
+    """The plain visual window: every observed landmark, the first pose as the gauge, and
+    the `pinned` keyframes' poses held (the stereo engine's keyframes placed by flow)."""
+
+    pinned: np.ndarray | None = None
+
+    def pinned_poses(self) -> np.ndarray | None:
+        return self.pinned
 
     def keep_landmarks(self, w0: int) -> None:
         return None
@@ -100,6 +110,7 @@ def solve_window(
         fix_first=extension.fix_first_pose(),
         keep_landmarks=extension.keep_landmarks(w0),
         extra_planes=extension.extra_planes(),
+        pinned=extension.pinned_poses(),
     )
     win = dataclasses.replace(win, data=extension.problem_data(win))
     problem = build_problem(win.data, variant, robust_px=s.cauchy)

@@ -23,7 +23,8 @@ from backend.pipeline.tracking import line_errors, line_reprojection, match_by_p
 class Tracked:
     """A frame's pose, the keypoint matched to each local map point (-1: none), point
     inliers, and the map lines that helped place it (`line_inliers`: 0 unless the points
-    alone could not, `LineAid`)."""
+    alone could not, `LineAid`); `by_flow`: placed by optical flow from the last placed
+    frame, not against the map (`stages.flow_track`; no matches then)."""
 
     R: np.ndarray
     t: np.ndarray
@@ -31,6 +32,7 @@ class Tracked:
     inliers: int
     ok: bool
     line_inliers: int = 0
+    by_flow: bool = False
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,142 @@
+"""A stereo frame that the map cannot place, placed by optical flow from the last placed
+frame (the stereo engine's last resort before a frame is lost).
+
+Why: on a bare wall ORB finds a few dozen corners at its FAST threshold, too few to match
+the map, and those it finds on the paint's grain do not repeat from frame to frame; but
+that grain still has gradient enough for Lucas-Kanade. So the reference frame (the last
+frame whose pose is known, with its left and right images) gets Shi-Tomasi corners at a
+low quality level, their depth from flow into its own right image (rectified: the same
+row, a positive disparity, forward-backward checked), and the corners followed into the
+frame's left image (forward-backward checked) give 3D-2D matches for EPnP-RANSAC and a
+robust refinement (`backend.pipeline.tracking`). The pose stands only with
+`min_inliers` inliers and a translation that they constrain to `max_translation_std_m`
+(largest axis of the inliers' Gauss-Newton covariance at `pixel_sigma`): a frame-to-frame
+pose, so its error adds up while the map cannot place frames (as visual odometry's does),
+and the map's tracking takes over again at the next frame that it can place.
+
+Frames: world z up, metres; pixels of the rectified left camera; images 8-bit grey.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from backend.frontend.flow import follow
+from backend.geometry.camera import PinholeCamera
+from backend.pipeline.tracking import pixel_errors, pnp_ransac, refine_pose, reprojection
+
+
+@dataclasses.dataclass(frozen=True)
+class FlowTrackSettings:
+    """Corners: at most `max_corners` (Shi-Tomasi quality `quality_level` of the strongest,
+    `min_distance_px` apart); stereo: rows within `max_row_px`, disparity at least
+    `min_disparity_px`, depth within [`min_depth_m`, `max_depth_m`]; the pose: EPnP-RANSAC
+    (3 px), refined with a Cauchy width `cauchy` at `pixel_sigma`, inliers within
+    `outlier_px`, at least `min_inliers` of them, translation standard deviation at most
+    `max_translation_std_m`."""
+
+    max_corners: int = 400
+    quality_level: float = 0.001
+    min_distance_px: float = 12.0
+    max_row_px: float = 1.0
+    min_disparity_px: float = 1.0
+    min_depth_m: float = 0.2
+    max_depth_m: float = 40.0
+    pixel_sigma: float = 1.0
+    cauchy: float = 2.0
+    outlier_px: float = 2.0
+    min_inliers: int = 20
+    max_translation_std_m: float = 0.02
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class FlowReference:
+    """The last placed frame: its index, left and right images (read-only) and pose
+    (`R_world_camera`, `t_world_camera`). Immutable, so an engine checkpoint shares it
+    instead of copying the images."""
+
+    frame: int
+    left: np.ndarray
+    right: np.ndarray
+    R_world_camera: np.ndarray
+    t_world_camera: np.ndarray
+
+    @staticmethod
+    def of(frame: int, left: np.ndarray, right: np.ndarray, R_world_camera: np.ndarray, t_world_camera: np.ndarray) -> FlowReference:
+        arrays = [np.array(a) for a in (left, right, R_world_camera, t_world_camera)]
+        for a in arrays:
+            a.flags.writeable = False
+        return FlowReference(frame, *arrays)
+
+    def __deepcopy__(self, memo: dict) -> FlowReference:
+        return self
+
+    def __copy__(self) -> FlowReference:
+        return self
+
+
+@dataclasses.dataclass(frozen=True)
+class FlowPose:
+    """A frame's pose from flow (`R_world_camera`, `t_world_camera`), its inliers, the
+    translation's standard deviation (m) and whether it stands (`ok`)."""
+
+    R_world_camera: np.ndarray
+    t_world_camera: np.ndarray
+    inliers: int
+    translation_std_m: float
+    ok: bool
+
+
+def stereo_corners(camera: PinholeCamera, left: np.ndarray, right: np.ndarray, s: FlowTrackSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Corners of `left` with stereo depth: pixels (N, 2) and points in the left camera's
+    frame (N, 3), metres (module docstring)."""
+    found = cv2.goodFeaturesToTrack(left, maxCorners=s.max_corners, qualityLevel=s.quality_level, minDistance=s.min_distance_px)
+    if found is None or camera.baseline <= 0.0:
+        return np.zeros((0, 2)), np.zeros((0, 3))
+    uv = found.reshape(-1, 2).astype(float)
+    uv_right, ok = follow(left, right, uv, camera)
+    disparity = uv[:, 0] - uv_right[:, 0]
+    ok &= (np.abs(uv_right[:, 1] - uv[:, 1]) <= s.max_row_px) & (disparity >= s.min_disparity_px)
+    uv, disparity = uv[ok], disparity[ok]
+    z = camera.fx * camera.baseline / disparity
+    near = (z >= s.min_depth_m) & (z <= s.max_depth_m)
+    uv, z = uv[near], z[near]
+    return uv, camera.normalize(uv) * z[:, None]
+
+
+def track_by_flow(camera: PinholeCamera, reference: FlowReference, left: np.ndarray, *, settings: FlowTrackSettings, seed: int = 0) -> FlowPose:
+    """The pose of the frame whose left image is `left`, from `reference` by flow (module
+    docstring). `ok` False where too few corners, matches or inliers are found or the
+    translation is not constrained enough."""
+    s = settings
+    R0, t0 = reference.R_world_camera, reference.t_world_camera
+    fail = FlowPose(R0.copy(), t0.copy(), 0, float("inf"), False)
+    uv_ref, p_ref = stereo_corners(camera, reference.left, reference.right, s)
+    if len(uv_ref) < s.min_inliers:
+        return fail
+    uv, ok = follow(reference.left, left, uv_ref, camera)
+    if np.count_nonzero(ok) < s.min_inliers:
+        return fail
+    p_world = p_ref[ok] @ R0.T + t0
+    uv = uv[ok]
+    pose = pnp_ransac(camera, p_world, uv, min_inliers=s.min_inliers, seed=seed)
+    if pose is None:
+        return fail
+    R, t, inlier = pose
+    ref = refine_pose(camera, R, t, p_world[inlier], uv[inlier], sigma_px=s.pixel_sigma, cauchy=s.cauchy)
+    R, t = ref.R_world_camera, ref.t_world_camera
+    keep = pixel_errors(camera, R, t, p_world, uv) < s.outlier_px
+    n = int(np.count_nonzero(keep))
+    if n < s.min_inliers:
+        return FlowPose(R, t, n, float("inf"), False)
+    _, J, _ = reprojection(camera, R, t, p_world[keep], uv[keep])
+    J = J / s.pixel_sigma
+    H = np.tensordot(J, J, axes=([0, 1], [0, 1]))
+    try:
+        std_m = float(np.sqrt(np.max(np.linalg.eigvalsh(np.linalg.inv(H)[3:, 3:]))))
+    except np.linalg.LinAlgError:
+        std_m = float("inf")
+    return FlowPose(R, t, n, std_m, bool(std_m <= s.max_translation_std_m))
