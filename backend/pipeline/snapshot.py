@@ -202,7 +202,7 @@ class Tracking:
     whose pose could not be tracked (predicted by the motion model instead), map
     re-initializations after a loss, the tracked points / lines of the keyframe, and why
     the frame became a keyframe ("first frame", "rule", "fallback", "fast motion",
-    "re-initialization"; see StereoSettings)."""
+    "placed by flow", "re-initialization"; see StereoSettings)."""
 
     frames: int
     lost_frames: int

@@ -15,7 +15,11 @@ prediction, the same around the last frame's pose, and PnP-RANSAC on descriptor 
 with the last keyframe's points and with the whole local map; when none has enough
 inliers, variants with lines try the local map's lines with the points (`LineAid` in
 `stages/track.py`: a bare wall's few corners and its marks' edges); when that fails too,
-the frame is *lost* (its pose is the prediction). The paper's keyframe rule (at
+the frame is placed by optical flow from the last placed frame (`stages/flow_track.py`:
+that frame's corners with stereo depth followed into this one, EPnP-RANSAC), and only
+where that fails as well is the frame *lost* (its pose is the prediction). A frame placed
+by flow becomes a keyframe once it has the keypoints a new map would need, and its pose is
+held in every later window. The paper's keyframe rule (at
 least 1 s since the last keyframe, the paper's 20 frames at 20 Hz, more than 40 tracked
 points, at least 10 % new keypoints) with a quality fallback (tracked points below a share
 of the last keyframe's: the scene changed; at least 0.1 s after it) and a fast-motion rule
@@ -127,7 +131,7 @@ class StereoEngine(CoreEngine):
             else:
                 tracked = c.track(i, kp, predicted=c.constant_velocity(i), verify_below=self._verify_below(), left=left)
                 if not tracked.ok:
-                    tracked = self._placed_by_flow(i, left, tracked)
+                    tracked = self._placed_by_flow(i, left, right, tracked)
                 reason = self._keyframe_reason(i, kp, tracked)
             timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
             c.remember_frame(i, tracked.R, tracked.t)
@@ -151,7 +155,7 @@ class StereoEngine(CoreEngine):
 
     # ------------------------------------------------------------------ tracking
 
-    def _placed_by_flow(self, i: int, left: np.ndarray, lost: Tracked) -> Tracked:
+    def _placed_by_flow(self, i: int, left: np.ndarray, right: np.ndarray, lost: Tracked) -> Tracked:
         """Frame i, which the map could not place (`lost`), placed by optical flow from the
         last placed frame (`stages.flow_track`); `lost` itself where that fails too or is
         off (`flow_track` None) or no frame was placed yet in this run."""
@@ -159,7 +163,7 @@ class StereoEngine(CoreEngine):
         reference = self._flow_reference
         if s.flow_track is None or reference is None:
             return lost
-        pose = track_by_flow(self.core.camera, reference, left, settings=s.flow_track, seed=s.seed + i)
+        pose = track_by_flow(self.core.camera, reference, left, right, settings=s.flow_track, seed=s.seed + i)
         if not pose.ok:
             return lost
         self.core.messages.append(f"frame {i}: placed by optical flow from frame {reference.frame} ({pose.inliers} inliers; the map could not place it)")

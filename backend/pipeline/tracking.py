@@ -32,9 +32,13 @@ class PoseRefinement:
     inliers: int
 
 
-def reprojection(camera: PinholeCamera, R_world_camera: np.ndarray, t_world_camera: np.ndarray, p_world: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def reprojection(
+    camera: PinholeCamera, R_world_camera: np.ndarray, t_world_camera: np.ndarray, p_world: np.ndarray, uv: np.ndarray, *, offset_camera: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals (M, 2) in pixels, their Jacobians (M, 2, 6) w.r.t. the pose's `(δθ, δt)`
-    and depths (M,) of world points (M, 3) observed at `uv` (M, 2) in the left image."""
+    and depths (M,) of world points (M, 3) observed at `uv` (M, 2) in the left image, or
+    with `offset_camera` (3,) (metres, the left camera's frame; e.g. `camera.offset_right`)
+    in the camera there (its depth)."""
     M = len(p_world)
     res, J, depth = factors.point_reprojection(
         camera,
@@ -44,7 +48,7 @@ def reprojection(camera: PinholeCamera, R_world_camera: np.ndarray, t_world_came
         R_world_camera[None],
         t_world_camera[None],
         np.zeros(M, dtype=np.int64),
-        np.zeros((M, 3)),
+        np.zeros((M, 3)) if offset_camera is None else np.tile(np.asarray(offset_camera, dtype=float), (M, 1)),
         uv,
     )
     return res, J[:, :, 1:], depth

@@ -8,9 +8,11 @@ frame whose pose is known, with its left and right images) gets Shi-Tomasi corne
 low quality level, their depth from flow into its own right image (rectified: the same
 row, a positive disparity, forward-backward checked), and the corners followed into the
 frame's left image (forward-backward checked) give 3D-2D matches for EPnP-RANSAC and a
-robust refinement (`backend.pipeline.tracking`). The pose stands only with
+robust refinement (`backend.pipeline.tracking`); an inlier must also be found by flow in
+the frame's own right image where the pose puts it. The pose stands only with
 `min_inliers` inliers and a translation that they constrain to `max_translation_std_m`
-(largest axis of the inliers' Gauss-Newton covariance at `pixel_sigma`): a frame-to-frame
+(largest axis of the inliers' Gauss-Newton covariance, both images' columns at
+`pixel_sigma`): a frame-to-frame
 pose, so its error adds up while the map cannot place frames (as visual odometry's does),
 and the map's tracking takes over again at the next frame that it can place.
 
@@ -35,8 +37,8 @@ class FlowTrackSettings:
     `min_distance_px` apart); stereo: rows within `max_row_px`, disparity at least
     `min_disparity_px`, depth within [`min_depth_m`, `max_depth_m`]; the pose: EPnP-RANSAC
     (3 px), refined with a Cauchy width `cauchy` at `pixel_sigma`, inliers within
-    `outlier_px`, at least `min_inliers` of them, translation standard deviation at most
-    `max_translation_std_m`."""
+    `outlier_px` in the left and the right image, at least `min_inliers` of them,
+    translation standard deviation at most `max_translation_std_m`."""
 
     max_corners: int = 400
     quality_level: float = 0.001
@@ -45,7 +47,7 @@ class FlowTrackSettings:
     min_disparity_px: float = 1.0
     min_depth_m: float = 0.2
     max_depth_m: float = 40.0
-    pixel_sigma: float = 1.0
+    pixel_sigma: float = 0.5  # the forward-backward check keeps flow that returns within 0.5 px
     cauchy: float = 2.0
     outlier_px: float = 2.0
     min_inliers: int = 20
@@ -107,10 +109,14 @@ def stereo_corners(camera: PinholeCamera, left: np.ndarray, right: np.ndarray, s
     return uv, camera.normalize(uv) * z[:, None]
 
 
-def track_by_flow(camera: PinholeCamera, reference: FlowReference, left: np.ndarray, *, settings: FlowTrackSettings, seed: int = 0) -> FlowPose:
-    """The pose of the frame whose left image is `left`, from `reference` by flow (module
-    docstring). `ok` False where too few corners, matches or inliers are found or the
-    translation is not constrained enough."""
+def track_by_flow(camera: PinholeCamera, reference: FlowReference, left: np.ndarray, right: np.ndarray, *, settings: FlowTrackSettings, seed: int = 0) -> FlowPose:
+    """The pose of the frame whose rectified pair is `left`, `right`, from `reference` by
+    flow (module docstring). An inlier must also agree with the frame's own stereo: followed
+    into `right`, it lies within `outlier_px` of where the pose puts it there (a wrong
+    depth at the reference, e.g. flow into its right image caught on the grain's repeat, is
+    what the left image alone cannot see: consistent wrong depths fit a wrong pose). `ok`
+    False where too few corners, matches or inliers are found or the translation is not
+    constrained enough."""
     s = settings
     R0, t0 = reference.R_world_camera, reference.t_world_camera
     fail = FlowPose(R0.copy(), t0.copy(), 0, float("inf"), False)
@@ -128,15 +134,37 @@ def track_by_flow(camera: PinholeCamera, reference: FlowReference, left: np.ndar
     R, t, inlier = pose
     ref = refine_pose(camera, R, t, p_world[inlier], uv[inlier], sigma_px=s.pixel_sigma, cauchy=s.cauchy)
     R, t = ref.R_world_camera, ref.t_world_camera
-    keep = pixel_errors(camera, R, t, p_world, uv) < s.outlier_px
+    uv_right = _right_pixels(camera, left, right, uv, s)
+    keep = (pixel_errors(camera, R, t, p_world, uv) < s.outlier_px) & (_right_errors(camera, R, t, p_world, uv_right) < s.outlier_px)
     n = int(np.count_nonzero(keep))
     if n < s.min_inliers:
         return FlowPose(R, t, n, float("inf"), False)
-    _, J, _ = reprojection(camera, R, t, p_world[keep], uv[keep])
-    J = J / s.pixel_sigma
-    H = np.tensordot(J, J, axes=([0, 1], [0, 1]))
+    ref = refine_pose(camera, R, t, p_world[keep], uv[keep], sigma_px=s.pixel_sigma, cauchy=s.cauchy)
+    R, t = ref.R_world_camera, ref.t_world_camera
+    _, J_left, _ = reprojection(camera, R, t, p_world[keep], uv[keep])
+    _, J_right, _ = reprojection(camera, R, t, p_world[keep], uv_right[keep], offset_camera=camera.offset_right)
+    J = np.concatenate([J_left.reshape(-1, 6), J_right[:, 0]]) / s.pixel_sigma  # the right image measures u (its row is the left's)
+    H = J.T @ J
     try:
         std_m = float(np.sqrt(np.max(np.linalg.eigvalsh(np.linalg.inv(H)[3:, 3:]))))
     except np.linalg.LinAlgError:
         std_m = float("inf")
     return FlowPose(R, t, n, std_m, bool(std_m <= s.max_translation_std_m))
+
+
+def _right_pixels(camera: PinholeCamera, left: np.ndarray, right: np.ndarray, uv: np.ndarray, s: FlowTrackSettings) -> np.ndarray:
+    """Pixels `uv` (N, 2) of `left` followed by flow into `right` (N, 2); NaN where not
+    found or off the row by more than `max_row_px`."""
+    uv_right, found = follow(left, right, uv, camera)
+    found &= np.abs(uv_right[:, 1] - uv[:, 1]) <= s.max_row_px
+    return np.where(found[:, None], uv_right, np.nan)
+
+
+def _right_errors(camera: PinholeCamera, R: np.ndarray, t: np.ndarray, p_world: np.ndarray, uv_right: np.ndarray) -> np.ndarray:
+    """Horizontal distance (N,) in pixels between where the pose (R, t: `R_world_camera`,
+    `t_world_camera`) puts points `p_world` (N, 3) in the right image and `uv_right`; inf
+    where that is NaN or the point is behind the camera."""
+    p_right = (p_world - t) @ R - camera.offset_right
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.abs(camera.fx * p_right[:, 0] / p_right[:, 2] + camera.cx - uv_right[:, 0])
+    return np.where((p_right[:, 2] > 1e-6) & np.isfinite(err), err, np.inf)

@@ -43,7 +43,7 @@ def test_a_bare_wall_frame_that_orb_cannot_track_is_placed_by_flow() -> None:
     seq = _low_texture()
     left = seq.rectified_pair(9)[0]
     assert len(detect_points(left, settings=_SETTINGS.points).uv) < 3 * _SETTINGS.min_tracking_inliers  # too few for tracking or a new map
-    pose = track_by_flow(seq.camera, _reference(seq, 8), left, settings=FlowTrackSettings())
+    pose = track_by_flow(seq.camera, _reference(seq, 8), left, seq.rectified_pair(9)[1], settings=FlowTrackSettings())
     assert pose.ok and pose.inliers >= 40
     t_err, r_err = _errors(seq, 9, pose.R_world_camera, pose.t_world_camera)
     assert t_err < 0.005 and r_err < 0.1  # the frame moved 9 mm
@@ -52,13 +52,25 @@ def test_a_bare_wall_frame_that_orb_cannot_track_is_placed_by_flow() -> None:
 def test_a_frame_without_texture_or_a_loose_translation_is_not_placed() -> None:
     seq = _low_texture()
     reference = _reference(seq, 8)
+    left, right = seq.rectified_pair(9)
     for image in (np.zeros_like(reference.left), np.full_like(reference.left, 128)):
-        assert not track_by_flow(seq.camera, reference, image, settings=FlowTrackSettings()).ok
+        assert not track_by_flow(seq.camera, reference, image, image, settings=FlowTrackSettings()).ok
     grey = dataclasses.replace(reference, left=np.full_like(reference.left, 128))  # no corners in the reference
-    assert not track_by_flow(seq.camera, grey, seq.rectified_pair(9)[0], settings=FlowTrackSettings()).ok
+    assert not track_by_flow(seq.camera, grey, left, right, settings=FlowTrackSettings()).ok
     strict = FlowTrackSettings(max_translation_std_m=1e-6)  # no real set of inliers holds the translation this well
-    pose = track_by_flow(seq.camera, reference, seq.rectified_pair(9)[0], settings=strict)
+    pose = track_by_flow(seq.camera, reference, left, right, settings=strict)
     assert not pose.ok and pose.inliers >= 40 and np.isfinite(pose.translation_std_m)
+
+
+def test_depths_the_frame_own_stereo_contradicts_place_nothing() -> None:
+    """A reference whose right image is shifted by 3 px: every corner's depth wrong the same
+    way, which the left image alone fits with a wrong pose; the frame's right image refuses it."""
+    seq = _low_texture()
+    reference = _reference(seq, 8)
+    shifted = dataclasses.replace(reference, right=np.roll(reference.right, -3, axis=1))
+    left, right = seq.rectified_pair(9)
+    assert not track_by_flow(seq.camera, shifted, left, right, settings=FlowTrackSettings()).ok
+    assert track_by_flow(seq.camera, reference, left, right, settings=FlowTrackSettings()).ok
 
 
 def test_the_reference_is_immutable_and_shared_by_copies() -> None:
