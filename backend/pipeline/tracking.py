@@ -54,6 +54,19 @@ def reprojection(
     return res, J[:, :, 1:], depth
 
 
+def translation_std_m(J_whitened: np.ndarray) -> float:
+    """The largest standard deviation (m) of a pose's translation from whitened residual
+    Jacobians `J_whitened` (..., 6) w.r.t. `(δθ, δt)`: the square root of the largest
+    eigenvalue of the translation block of `(JᵀJ)⁻¹` (Gauss-Newton's covariance); inf where
+    JᵀJ is singular."""
+    J = J_whitened.reshape(-1, 6)
+    H = np.tensordot(J, J, axes=([0], [0]))
+    try:
+        return float(np.sqrt(np.max(np.linalg.eigvalsh(np.linalg.inv(H)[3:, 3:]))))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
 def _cauchy(s2: np.ndarray, c2: float) -> tuple[np.ndarray, np.ndarray]:
     """Cauchy ρ(s²) = c² log(1 + s²/c²) and its weight ρ'(s²)."""
     return c2 * np.log1p(s2 / c2), 1.0 / (1.0 + s2 / c2)

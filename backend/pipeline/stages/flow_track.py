@@ -28,7 +28,7 @@ import numpy as np
 
 from backend.frontend.flow import follow
 from backend.geometry.camera import PinholeCamera
-from backend.pipeline.tracking import pixel_errors, pnp_ransac, refine_pose, reprojection
+from backend.pipeline.tracking import pixel_errors, pnp_ransac, refine_pose, reprojection, translation_std_m
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,12 +143,7 @@ def track_by_flow(camera: PinholeCamera, reference: FlowReference, left: np.ndar
     R, t = ref.R_world_camera, ref.t_world_camera
     _, J_left, _ = reprojection(camera, R, t, p_world[keep], uv[keep])
     _, J_right, _ = reprojection(camera, R, t, p_world[keep], uv_right[keep], offset_camera=camera.offset_right)
-    J = np.concatenate([J_left.reshape(-1, 6), J_right[:, 0]]) / s.pixel_sigma  # the right image measures u (its row is the left's)
-    H = J.T @ J
-    try:
-        std_m = float(np.sqrt(np.max(np.linalg.eigvalsh(np.linalg.inv(H)[3:, 3:]))))
-    except np.linalg.LinAlgError:
-        std_m = float("inf")
+    std_m = translation_std_m(np.concatenate([J_left.reshape(-1, 6), J_right[:, 0]]) / s.pixel_sigma)  # the right image measures u (its row is the left's)
     return FlowPose(R, t, n, std_m, bool(std_m <= s.max_translation_std_m))
 
 

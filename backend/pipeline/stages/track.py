@@ -16,7 +16,7 @@ from backend.frontend.points import Keypoints, best_matches, nearest_hamming, pa
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 from backend.mapping.map import Map
-from backend.pipeline.tracking import line_errors, line_reprojection, match_by_projection, merge_matches, pixel_errors, refine_pose, relocalize, reprojection
+from backend.pipeline.tracking import line_errors, line_reprojection, match_by_projection, merge_matches, pixel_errors, refine_pose, relocalize, reprojection, translation_std_m
 
 
 @dataclasses.dataclass(frozen=True)
@@ -271,13 +271,7 @@ def refine_with_lines(camera: PinholeCamera, s: TrackSettings, aid: LineAid, seg
     if ok:
         _, J_p, _ = reprojection(camera, R, t, P[mp[p_ok]], kp.uv[p_match[mp[p_ok]]])
         _, J_l = line_reprojection(camera, R, t, m_world[ml[l_ok]], v_world[ml[l_ok]], seg_uv[l_ok])
-        J = np.concatenate([J_p, J_l]) / s.pixel_sigma
-        H = np.tensordot(J, J, axes=([0, 1], [0, 1]))
-        try:
-            std_m = float(np.sqrt(np.max(np.linalg.eigvalsh(np.linalg.inv(H)[3:, 3:]))))
-        except np.linalg.LinAlgError:
-            std_m = np.inf
-        ok = std_m <= aid.max_translation_std_m
+        ok = translation_std_m(np.concatenate([J_p, J_l]) / s.pixel_sigma) <= aid.max_translation_std_m
     return Tracked(R, t, p_match, n_points, ok, line_inliers=n_lines)
 
 
