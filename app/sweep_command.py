@@ -108,7 +108,8 @@ def _print_row(row: dict[str, Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     from app.errors import UsageError
     from backend.common.atomic import remove_stale_staging
-    from backend.sweep.runner import RayUnavailable, Runs, finished_row, ray_runs, ray_session, run_sweep, serial_runs
+    from backend.sweep.provenance import current
+    from backend.sweep.runner import RayUnavailable, Runs, finished_row, foreign_runs, ray_runs, ray_session, run_sweep, serial_runs
 
     _check_execution(args)
     specs = matrix_runs(args)
@@ -128,6 +129,14 @@ def run(args: argparse.Namespace) -> int:
                 where = f"on {cluster.where} ({cluster.cpus:g} CPUs)"
             _prepare(out)
             print(f"sweep: {len(specs)} runs {where}, into {out}", file=sys.stderr)
+            foreign = foreign_runs(specs, out)
+            if foreign:
+                here = current()
+                print(
+                    f"note: {len(foreign)} finished runs in {out} were made by other code or on another machine than {here.commit or 'this code'} on {here.machine()}"
+                    f" (or do not say), e.g. {foreign[0]}: they are reused as they are; move them away to run them again",
+                    file=sys.stderr,
+                )
             outcome = run_sweep(specs, out, runs=runs, on_row=_print_row)
     except RayUnavailable as e:
         raise UsageError(str(e)) from None

@@ -32,6 +32,8 @@ import sys
 import numpy as np
 from table_sweep import SWEEPS, add_sweep_options, axis_options, f, publish, sweep_runs
 
+from backend.sweep import provenance
+
 SWEEP = SWEEPS / "robustness.toml"
 REPORT_SEEDS = "2-4"
 INIT_GOAL_S = 3.0
@@ -65,6 +67,7 @@ def outcome(r: dict) -> dict:
         "restarts": restarts,
         "ate_rmse_cm": ate,
         "path_m": path_m,
+        "provenance": r.get("provenance"),
     }
     misses = []
     if r["lost_frames"]:
@@ -140,6 +143,8 @@ def table(outcomes: list[dict], *, command: str = ".venv/bin/python scripts/robu
         "re-initializations (sums), ATE after SE(3) alignment (cm, median / worst), and for VIO restarts of the start (shown, not a goal: they cost start time), the excitation onset "
         "(s from the first frame; the first second whose true acceleration averages 0.25 m/s², VINS-Mono's threshold; median / latest; "
         '"never": runs never that excited), the initialization time after it (s, median / worst) and the Sim(3) scale error (%, median / worst).',
+        "",
+        f"Measured at: {provenance.summary(provenance.Provenance.from_dict(o.get('provenance')) for o in outcomes)}. The VIO runs are sensitive to rounding: compare tables made on one machine.",
         "",
         "| mode | scene | speed | variant | fail | lost | re-init. | ATE cm | restarts | excited s | init. s after | scale err. % |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",

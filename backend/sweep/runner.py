@@ -26,6 +26,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+from backend.sweep import provenance
 from backend.sweep.matrix import RunSpec
 from backend.sweep.results import FAILED, failed_row, ok_row
 
@@ -65,7 +66,7 @@ def execute(spec: RunSpec, out: pathlib.Path) -> Row:
         with staged_folder(out) as stage:
             frame = TrajectoryFrame(spec.trajectory_frame)
             result = run_headless(spec.config(), stage / spec.run_id, keyframes=spec.keyframes, dense=spec.dense, trajectory_frame=frame, progress=False)
-            record = {"run_id": spec.run_id, "parameters": spec.parameters(), "wall_s": result.wall_s}
+            record = {"run_id": spec.run_id, "parameters": spec.parameters(), "wall_s": result.wall_s, "provenance": provenance.current().to_dict()}
             (stage / spec.run_id / RUN_RECORD).write_text(json.dumps(record, indent=2) + "\n")
         return ok_row(spec, result.metrics, wall_s=result.wall_s)
     except Exception as e:  # one run's failure is a row of the table, not the sweep's end
@@ -94,6 +95,30 @@ def finished_row(spec: RunSpec, out: pathlib.Path) -> Row | None:
     if differ:
         return failed_row(spec, f"{folder} holds a finished run with other {', '.join(differ)}: move it away to run it again")
     return ok_row(spec, metrics, wall_s=float(record["wall_s"]))
+
+
+def recorded_provenance(spec: RunSpec, out: pathlib.Path) -> provenance.Provenance | None:
+    """The provenance (commit, CPU, BLAS kernel) in the run.json of `spec`'s finished run in
+    `out`; None when the run or its record is missing or predates the provenance."""
+    try:
+        record = json.loads((out / spec.run_id / RUN_RECORD).read_text())
+    except (OSError, ValueError):
+        return None
+    return provenance.Provenance.from_dict(record.get("provenance")) if isinstance(record, dict) else None
+
+
+def foreign_runs(specs: Sequence[RunSpec], out: pathlib.Path) -> list[str]:
+    """The run ids of `specs` whose finished run in `out` was made by other code or on
+    another machine than this process (or does not say), as a resumed sweep reuses them."""
+    here = provenance.current()
+    foreign = []
+    for spec in specs:
+        if finished_row(spec, out) is None:
+            continue
+        recorded = recorded_provenance(spec, out)
+        if recorded is None or recorded.commit != here.commit or recorded.machine() != here.machine():
+            foreign.append(spec.run_id)
+    return foreign
 
 
 # Parameters absent from older run.json files, at the value they had then (every window was 10).
