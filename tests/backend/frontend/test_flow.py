@@ -7,7 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from backend.frontend.flow import FlowTracks, follow
+from backend.frontend.flow import _LK, FlowTracks, follow, gain_matched, gain_ratio
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 
@@ -71,3 +71,47 @@ def test_tracks_are_seeded_apart_and_capped() -> None:
     assert len(more) == 4 and more.anchor.tolist() == [3, 3, 4, 4]  # (105, 12) is within 20 px of a track; the cap leaves out (400, 10)
     moved = more.followed(more.uv + 1.0, np.array([True, False, True, True]))
     assert moved.anchor_kp.tolist() == [7, 1, 2] and np.array_equal(moved.uv_anchor, more.uv_anchor[[0, 2, 3]])
+
+
+def test_an_exposure_step_is_undone_before_the_flow() -> None:
+    """An auto-exposure step (1.45x, a tenth of the pixels saturated) between two frames: the
+    features are followed as well as without it, and the flow does not merely survive by
+    luck: without the gain matching it loses many of them."""
+    image = (_textured(3).astype(np.float32) * 0.6 + 70).astype(np.uint8)
+    moved = np.roll(image, 6, axis=1)
+    brighter = cv2.convertScaleAbs(moved, alpha=1.45)
+    assert (brighter == 255).mean() > 0.05
+    uv0 = cv2.goodFeaturesToTrack(image, 300, 0.01, 20).reshape(-1, 2).astype(float)
+    uv0 = uv0[(uv0[:, 0] > 30) & (uv0[:, 0] < 700)]
+    uv_same, ok_same = follow(image, moved, uv0, CAMERA)
+    uv, ok = follow(image, brighter, uv0, CAMERA)
+    assert ok.sum() >= 0.95 * ok_same.sum()
+    assert np.median(np.abs(uv[ok] - (uv0[ok] + [6.0, 0.0]))) < 0.1
+    unmatched = flow_without_gain_matching(image, brighter, uv0)
+    assert unmatched.sum() < 0.5 * ok.sum()  # plain LK: 6 of 268
+    # a frame of the same exposure is left exactly as it is
+    assert gain_matched(image, moved) is moved
+
+
+def flow_without_gain_matching(image_prev: np.ndarray, image: np.ndarray, uv0: np.ndarray) -> np.ndarray:
+    """Which of `uv0` plain forward-backward LK follows (the settings `follow` uses)."""
+    p0 = uv0.astype(np.float32).reshape(-1, 1, 2)
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, None, **_LK)
+    back, st_b, _ = cv2.calcOpticalFlowPyrLK(image, image_prev, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
+    return (st.ravel() == 1) & (st_b.ravel() == 1) & (np.linalg.norm((back - p0).reshape(-1, 2), axis=1) < 0.5)
+
+
+def test_content_moving_through_the_view_is_not_taken_for_an_exposure_change() -> None:
+    """A bright wall sliding 40 px into the view moves the image's median grey level by more
+    than the tolerance (as real frames do: MH_01 frame 18), but the exposure is the same: the
+    frame is left as it is. A true 0.7x step is read within 2 %."""
+    rng = np.random.default_rng(4)
+    scene = np.clip(rng.normal(90, 12, (480, 900)), 0, 255).astype(np.float32)
+    scene[:, 396:] += 110  # the bright wall: 47 % of the view before, 53 % after
+    scene = cv2.GaussianBlur(scene, (0, 0), 2.0).astype(np.uint8)
+    before, after = scene[:, 0:752], scene[:, 40:792]
+    assert abs(np.median(before) / np.median(after) - 1.0) > 0.1
+    assert abs(gain_ratio(before, after) - 1.0) < 0.03
+    assert gain_matched(before, after) is after
+    darker = cv2.convertScaleAbs(after, alpha=0.7)
+    assert abs(gain_ratio(before, darker) - 1 / 0.7) < 0.02 / 0.7
