@@ -82,15 +82,16 @@ def cpu_model() -> str:
 
 
 def blas_kernel() -> str:
-    """The BLAS NumPy uses and its kernel for this CPU (threadpoolctl), e.g. `openblas
-    Haswell`; "unknown" when threadpoolctl sees none."""
+    """Every BLAS NumPy and SciPy load and its kernel for this CPU (threadpoolctl), sorted and
+    joined, e.g. `openblas Haswell + openblas Zen` (NumPy's and SciPy's wheels each bundle
+    their own OpenBLAS, and each picks its kernel): both are imported first, so the answer
+    does not depend on what the run happened to load; "unknown" when threadpoolctl sees none."""
     import numpy  # noqa: F401  (loads the BLAS threadpoolctl inspects)
+    import scipy.linalg  # noqa: F401
     from threadpoolctl import threadpool_info
 
-    for info in threadpool_info():
-        if info.get("user_api") == "blas":
-            return " ".join(str(part) for part in (info.get("internal_api"), info.get("architecture")) if part)
-    return "unknown"
+    kernels = {" ".join(str(part) for part in (info.get("internal_api"), info.get("architecture")) if part) for info in threadpool_info() if info.get("user_api") == "blas"}
+    return " + ".join(sorted(kernels)) or "unknown"
 
 
 @functools.cache
