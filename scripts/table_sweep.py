@@ -60,11 +60,12 @@ def axis_options(given: dict[str, str | None]) -> list[str]:
 
 def sweep_runs(config: pathlib.Path, args: argparse.Namespace, options: Sequence[str] = (), *, keep: tuple[str, ...] = (), failed: list[dict] | None = None) -> list[dict]:
     """`coplanar sweep --config CONFIG --out OUT OPTIONS` (OUT: `args.out` or a temporary
-        folder), as a user runs it; every finished run's metrics.json with its results row
-        (`row`: the run's parameters), its wall time (`wall_s`), where it was made (`provenance`:
-    commit, CPU and BLAS kernel from its run.json, None for runs from before they were kept) and, where `keep` names files, their
-        text (`files`), in the matrix's order. Failed runs are printed to stderr and left out; exits 2 where the
-        sweep refused its options (it said why)."""
+    folder), as a user runs it; every finished run's metrics.json with its results row
+    (`row`: the run's parameters), its wall time (`wall_s`), where it was made
+    (`provenance`: commit, CPU and BLAS kernels from its run.json, None for runs from before
+    they were kept) and, where `keep` names files, their text (`files`), in the matrix's
+    order. Failed runs are printed to stderr and left out; exits 2 where the sweep refused
+    its options (it said why)."""
     with tempfile.TemporaryDirectory() as scratch:
         out = args.out or pathlib.Path(scratch)
         command = [sys.executable, "-m", "app.cli", "sweep", "--config", str(config), "--out", str(out), *execution(args), *options]

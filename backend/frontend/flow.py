@@ -52,7 +52,7 @@ def gain_matched(image_reference: np.ndarray, image: np.ndarray, *, tolerance: f
 
     Lucas-Kanade assumes a pixel keeps its grey level; an auto-exposure step breaks that for
     every window at once (the `exposure` scene's 1.45× step at 1.5 s, after which 48 % of
-    the pixels are saturated: 128 of 300 corners followed instead of 253; scaled back, 253).
+    the pixels are saturated: 128 of 300 corners followed instead of 245 with the gain undone).
     Real cameras step too: EuRoC MH_01's auto-exposure changes the gain by 12-29 % between
     some of its first frames. Below the tolerance the flow copes by itself (ramps of 2-7 %
     a frame) and the images are left exactly as they are."""

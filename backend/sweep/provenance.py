@@ -82,11 +82,14 @@ def cpu_model() -> str:
 
 
 def blas_kernel() -> str:
-    """Every BLAS NumPy and SciPy load and its kernel for this CPU (threadpoolctl), sorted and
-    joined, e.g. `openblas Haswell + openblas Zen` (NumPy's and SciPy's wheels each bundle
-    their own OpenBLAS, and each picks its kernel): both are imported first, so the answer
-    does not depend on what the run happened to load; "unknown" when threadpoolctl sees none."""
-    import numpy  # noqa: F401  (loads the BLAS threadpoolctl inspects)
+    """Every BLAS the project's libraries bundle and the kernel each picks for this CPU
+    (threadpoolctl), sorted and joined, e.g. `openblas Haswell + openblas Zen`: NumPy's,
+    SciPy's and OpenCV's wheels each bundle their own OpenBLAS, and on one AMD EPYC VM NumPy's
+    picks Haswell's kernels and OpenCV's Zen's. All three are imported first, so the answer
+    depends on the machine only, not on what the process happened to load before; "unknown"
+    when threadpoolctl sees none."""
+    import cv2  # noqa: F401  (each import loads a BLAS threadpoolctl inspects)
+    import numpy  # noqa: F401
     import scipy.linalg  # noqa: F401
     from threadpoolctl import threadpool_info
 

@@ -97,16 +97,6 @@ def finished_row(spec: RunSpec, out: pathlib.Path) -> Row | None:
     return ok_row(spec, metrics, wall_s=float(record["wall_s"]))
 
 
-def recorded_provenance(spec: RunSpec, out: pathlib.Path) -> provenance.Provenance | None:
-    """The provenance (commit, CPU, BLAS kernel) in the run.json of `spec`'s finished run in
-    `out`; None when the run or its record is missing or predates the provenance."""
-    try:
-        record = json.loads((out / spec.run_id / RUN_RECORD).read_text())
-    except (OSError, ValueError):
-        return None
-    return provenance.Provenance.from_dict(record.get("provenance")) if isinstance(record, dict) else None
-
-
 def foreign_runs(specs: Sequence[RunSpec], out: pathlib.Path) -> list[str]:
     """The run ids of `specs` whose finished run in `out` was made by other code or on
     another machine than this process (or does not say), as a resumed sweep reuses them."""
@@ -115,7 +105,8 @@ def foreign_runs(specs: Sequence[RunSpec], out: pathlib.Path) -> list[str]:
     for spec in specs:
         if finished_row(spec, out) is None:
             continue
-        recorded = recorded_provenance(spec, out)
+        record = json.loads((out / spec.run_id / RUN_RECORD).read_text())  # finished_row read it
+        recorded = provenance.Provenance.from_dict(record.get("provenance") if isinstance(record, dict) else None)
         if recorded is None or recorded.commit != here.commit or recorded.machine() != here.machine():
             foreign.append(spec.run_id)
     return foreign
