@@ -103,13 +103,16 @@ def imu_markdown(s: Snapshot) -> str:
         for key, label, unit in truth_figures:
             if key in rep:
                 figures.append(f"{label} {_num(rep[key], 2)}{unit}")
+        for r in rep.get("refinements", []):
+            after = f", {_num(r['scale_error_pct'], 2)} % against the truth" if "scale_error_pct" in r else ""
+            figures.append(f"refined at keyframe {r['keyframe']} ({_num(r['after_start_s'], 1)} s after) ×{_num(r['scale'], 3)}{after}")
         init = f"initialized at keyframe {imu.init_keyframe}: " + ", ".join(figures) + " (against the truth where known)\n\n"
     return f"**IMU** ({'initialized' if imu.initialized else 'not initialized'}): {imu.status}\n\n{init}| | estimate | truth |\n|---|---|---|\n" + "\n".join(rows) + "\n\n"
 
 
-#: A start whose scale is known to worse than this (1σ, relative) is flagged: twice it
-#: exceeds the 10 % a user would notice in the map's size. The engine accepts up to 15 %
-#: (backend/pipeline/vio_settings.py); this is the debugger's warning, not a tuned figure.
+#: A scale known to worse than this (1σ, relative) is flagged: twice it exceeds the 10 % a
+#: user would notice in the map's size. The engine's start accepts up to 30 % and refines it
+#: later (backend/pipeline/vio_settings.py); this is the debugger's warning, not a tuned figure.
 UNCERTAIN_SCALE = 0.05
 #: Accelerometer excitation (VINS-Mono's std of Δv/Δt) below which the start says so.
 LOW_EXCITATION_MPS2 = 0.25
@@ -134,6 +137,18 @@ def vio_start_note(s: Snapshot) -> str:
     head = f"initialized at keyframe {imu.init_keyframe} ({_num(span, 1)} s of motion), the alignment's scale known to ±{_num(100 * sigma, 0)} % (1σ)"
     truth = rep.get("joint_scale_error_pct", rep.get("scale_error_pct"))
     against = f"; after the joint solve {_num(float(truth), 1)} % against the truth" if truth is not None and math.isfinite(float(truth)) else ""
+    if refinements := rep.get("refinements"):
+        last = refinements[-1]
+        sigma = float(last["scale_rel_std"])
+        error = last.get("scale_error_pct")
+        against = f", {_num(float(error), 1)} % against the truth" if error is not None and math.isfinite(float(error)) else ""
+        head = (
+            f"initialized at keyframe {imu.init_keyframe} ({_num(span, 1)} s of motion); its scale refined at keyframe {last['keyframe']} "
+            f"({_num(float(last['after_start_s']), 1)} s after the start) ×{_num(float(last['scale']), 3)}, known to ±{_num(100 * sigma, 0)} % (1σ)"
+        )
+        if not (math.isfinite(sigma) and sigma > UNCERTAIN_SCALE):
+            return f"VIO {head}{against}"
+        return f"**uncertain VIO scale**: {head}{against}. More motion (faster, or turning while moving) determines it better."
     if not (math.isfinite(sigma) and sigma > UNCERTAIN_SCALE):
         return f"VIO {head}{against}"
     why = []
@@ -143,7 +158,8 @@ def vio_start_note(s: Snapshot) -> str:
         why.append(f"little rotation ({_num(rotation, 0)}°)")
     because = f", because the start had {' and '.join(why)}" if why else ": the start's motion barely constrains it"
     return (
-        f"**uncertain VIO start**: {head}{because}{against}. The window's joint solve refines the scale from there; an error left shows in the "
+        f"**uncertain VIO start**: {head}{because}{against}. The window's joint solve refines the scale from there, and the alignment again with more motion "
+        "(15 s after the start); an error left shows in the "
         "map's size and the trajectory. A start with more motion (faster, or turning while moving: `--speed 2` on rendered scenes) gives a better one; Reset to start again."
     )
 

@@ -215,6 +215,14 @@ class Map:
         self.R_reference_frame.append(R_ref.T @ R_world_camera)
         self.t_reference_frame.append(R_ref.T @ (t_world_camera - t_ref))
 
+    def scale_frame_offsets(self, *, first_keyframe: int, scale: float) -> None:
+        """The tracked frames whose reference keyframe is `first_keyframe` or later: their
+        offsets from it times `scale` (the map from there on scaled: VIO's start and its
+        refinement), so that they stay where the scaled map puts them."""
+        moved = np.flatnonzero(self.frame_reference[:] >= first_keyframe)
+        if len(moved):
+            self.t_reference_frame[moved] = scale * self.t_reference_frame[moved]
+
     def frame_poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Every tracked frame: index, reference keyframe, and world pose (R, t) composed with
         the reference keyframe's latest estimate."""

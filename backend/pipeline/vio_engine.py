@@ -389,6 +389,8 @@ class VioEngine(CoreEngine):
             c.messages.append(f"VIO failure ({failure}): starting again from keyframe {k - 1}'s pose (new map segment)")
             self._restart_pose = (self.map.R_world_keyframe[k - 1].copy(), self.map.t_world_keyframe[k - 1].copy())
             self._start_segment()
+        elif k > self.start.keyframe:
+            self.start.refine(k, StartContext(self.map, self.inertial, self.imu_model, self.inertial_source, self.settings, c.messages))
         c.follow_keyframe(i, k)
 
         image = None

@@ -43,8 +43,10 @@ class VioSettings(StereoSettings):
     `init_alignment_interval_s` apart (fewer where the span holds fewer than
     `init_keyframes`: `vio_start.thinned`), then a visual-inertial bundle adjustment over
     them of at most `init_joint_iterations` iterations (the alignment's scale may be tens of
-    per cent off: more than the windows' iterations correct) (`alignment`: its acceptance; the scale may be 15 % uncertain, the
-    windows with IMU factors refine it; the accelerometer bias is estimated with a 0.2 m/s²
+    per cent off: more than the windows' iterations correct) (`alignment`: its acceptance; the scale may be 30 % uncertain, the
+    joint solve and the windows with IMU factors refine it, and `refine_after_s` after the
+    start the alignment again over the last `refine_window` keyframes, accepted by
+    `refine_alignment`, scales the segment by its factor (`VioStart.refine`); the accelerometer bias is estimated with a 0.2 m/s²
     prior: at 20 % the monocular structure's drift at a slow start passed scales 50-60 % off); the gauge prior's σ (`gauge_sigma_m`, `gauge_sigma_yaw_rad` for
     position and yaw, `gauge_sigma_tilt_rad` for roll and pitch) and the initial bias σ
     (`bias_sigma_accel`, `bias_sigma_gyro`) and velocity σ (`velocity_sigma`); the bias
@@ -111,4 +113,7 @@ class VioSettings(StereoSettings):
     flow_min_distance_px: float = 20.0
     flow_max_age_keyframes: int = 20
     flow_min_tracking_inliers: int = 12
-    alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.15, accel_bias_sigma=0.2)
+    alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.3, accel_bias_sigma=0.2)
+    refine_after_s: tuple[float, ...] = (15.0,)
+    refine_window: int = 40
+    refine_alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.15, accel_bias_sigma=0.2, scale_range=(0.5, 2.0))

@@ -84,6 +84,7 @@ class VioStart:
     report: dict = dataclasses.field(default_factory=dict)
     keyframe: int = -1
     first: tuple[int, dict] = (-1, {})
+    refined: int = 0  # scale refinements done since the last successful start (`refine`)
 
     def try_initialize(self, k: int, ctx: StartContext) -> None:
         """Visual-inertial alignment over the segment's last `init_window` keyframes, thinned
@@ -110,6 +111,7 @@ class VioStart:
         self._apply_alignment(kfs[used], result, ctx)
         ctx.inertial.initialized = True
         self.keyframe = k
+        self.refined = 0
         truth = self._init_truth(kfs, result, ctx)
         self.report.update(truth)
         if self.first[0] < 0:
@@ -154,6 +156,7 @@ class VioStart:
         seg = np.arange(ctx.map.segment_start, len(ctx.map))
         ctx.map.R_world_keyframe[seg] = np.einsum("ij,njk->nik", R_wv, ctx.map.R_world_keyframe[seg])
         ctx.map.t_world_keyframe[seg] = to_world(ctx.map.t_world_keyframe[seg])
+        ctx.map.scale_frame_offsets(first_keyframe=ctx.map.segment_start, scale=scale)
         P, Lm = ctx.map.points, ctx.map.lines
         pts = np.flatnonzero(P.anchor[:] >= ctx.map.segment_start)
         P.p_world[pts] = to_world(P.p_world[pts])
@@ -187,6 +190,51 @@ class VioStart:
         ctx.inertial.joint_from = k0
         ctx.inertial.marginalized_before = k0
         ctx.inertial.prior = self._gauge_prior(k0, ctx)
+
+    def refine(self, k: int, ctx: StartContext) -> None:
+        """The scale again, keeping the inertial state: once keyframe k is
+        `refine_after_s[i]` seconds after the start, the alignment over the segment's last
+        `refine_window` keyframes (thinned as the start's; already metric and gravity-aligned,
+        so its scale is the factor still missing), accepted by `refine_alignment` (a tighter
+        σ than the start's). The segment's keyframe positions, landmarks and planes are
+        scaled about keyframe k's position, its velocities by the factor, and the
+        marginalization prior's linearization point with them (its weights stay); rotations,
+        biases and preintegrations are kept. A rejected alignment is tried again at the next
+        keyframe. The start accepts a scale σ of 30 %, which the windows alone correct slowly
+        (their marginalization prior holds the scale); at 5 s as well the refinement was
+        noise (CHANGELOG, issue 26)."""
+        s = ctx.settings
+        m = ctx.map
+        if self.keyframe < 0 or self.refined >= len(s.refine_after_s):
+            return
+        since = (int(m.keyframe_stamp_ns[k]) - int(m.keyframe_stamp_ns[self.keyframe])) * 1e-9
+        if since < s.refine_after_s[self.refined]:
+            return
+        first = max(m.segment_start, k + 1 - s.refine_window)
+        kfs = np.arange(first, k + 1)
+        span = (int(m.keyframe_stamp_ns[k]) - int(m.keyframe_stamp_ns[first])) * 1e-9
+        if len(kfs) < s.init_keyframes:
+            return
+        used = kfs[thinned(m.keyframe_stamp_ns[kfs], min_interval_s=min(s.init_alignment_interval_s, span / (s.init_keyframes - 1)))]
+        R_v, t_v = m.R_world_keyframe[used], m.t_world_keyframe[used]
+        R_c0 = np.einsum("ji,njk->nik", R_v[0], R_v)
+        p_c0 = np.einsum("ji,nj->ni", R_v[0], t_v - t_v[0])
+        result = align_visual_inertial(m.keyframe_stamp_ns[used], R_c0, p_c0, ctx.model.imu, T_body_cam0=ctx.model.T_body_camera, noise=ctx.model.noise, settings=s.refine_alignment)
+        if not result.success:
+            return
+        sigma = float(result.quality.scale_rel_std)
+        while self.refined < len(s.refine_after_s) and since >= s.refine_after_s[self.refined]:
+            self.refined += 1
+        scale = float(result.scale)
+        truth = bool(np.all(ctx.source.ground_truth_valid[m.keyframe_frame[used]]))
+        before = _scale_error_pct(used, ctx) if truth else None
+        scale_segment(ctx.map, ctx.inertial, scale=scale, center_world=m.t_world_keyframe[k].copy())
+        entry: dict[str, float | int | None] = {"keyframe": k, "after_start_s": since, "aligned_keyframes": len(used), "scale": scale, "scale_rel_std": sigma}
+        if truth:
+            entry["scale_error_before_pct"] = before
+            entry["scale_error_pct"] = _scale_error_pct(used, ctx)
+        self.report.setdefault("refinements", []).append(entry)
+        ctx.messages.append(f"scale refined at keyframe {k} ({since:.1f} s after the start): ×{scale:.3f} (σ {100 * sigma:.1f} %)")
 
     def narrow(self, ctx: StartContext) -> None:
         """After the start's joint solve: the usual window of the last `window` keyframes,
@@ -249,6 +297,49 @@ class VioStart:
             # (Umeyama) that fits them best: the estimate's scale over the truth's, minus one.
             out["scale_error_pct"] = _scale_error_pct(kfs, ctx)
         return out
+
+
+def scale_segment(the_map: Map, state: InertialState, *, scale: float, center_world: np.ndarray) -> None:
+    """The map segment under x ↦ c + scale·(x - c) (world frame, c = `center_world`, m):
+    keyframe positions, the points and lines anchored in it, the planes they lie on; the
+    segment's velocities times `scale`; the marginalization prior's linearization point
+    (positions, velocities, plane offsets) with them. Rotations and plane normals stay."""
+    c = np.asarray(center_world, float)
+
+    def moved(x: np.ndarray) -> np.ndarray:
+        return c + scale * (x - c)
+
+    s0 = the_map.segment_start
+    seg = np.arange(s0, len(the_map))
+    the_map.t_world_keyframe[seg] = moved(the_map.t_world_keyframe[seg])
+    the_map.scale_frame_offsets(first_keyframe=s0, scale=scale)
+    P, Lm = the_map.points, the_map.lines
+    pts = np.flatnonzero(P.anchor[:] >= s0)
+    P.p_world[pts] = moved(P.p_world[pts])
+    segment_lines = np.flatnonzero(Lm.anchor[:] >= s0)
+    m_v, v_v = Lm.m[segment_lines], Lm.v[segment_lines]
+    lns = segment_lines[np.all(np.isfinite(m_v), axis=1) & (np.linalg.norm(v_v, axis=1) > 0)]
+    if len(lns):
+        Lm.m[lns], Lm.v[lns] = similarity_plucker(Lm.m[lns], Lm.v[lns], scale=scale, R=np.eye(3), c=(1.0 - scale) * c)
+    planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[segment_lines]]))
+
+    def moved_d(n: np.ndarray, d: float) -> float:
+        return float(-n @ moved(-d * n))  # the plane's point nearest the origin, moved
+
+    for q in planes[planes >= 0]:
+        the_map.planes.d[q] = moved_d(the_map.planes.n[q], float(the_map.planes.d[q]))
+    for kf in seg:
+        state.velocity[kf] = scale * state.velocity[kf]
+    prior = state.prior
+    if prior is not None:
+        inert = prior.inertial.copy()
+        inert[:, :3] *= scale
+        state.prior = dataclasses.replace(
+            prior,
+            t=moved(prior.t),
+            inertial=inert,
+            plane_d=np.array([moved_d(n, float(d)) for n, d in zip(prior.plane_n, prior.plane_d, strict=True)]).reshape(-1),
+        )
 
 
 def _scale_error_pct(kfs: np.ndarray, ctx: StartContext) -> float:

@@ -68,7 +68,7 @@ def test_trajectory_downloads_are_poses_of_the_ground_truths_frame() -> None:
     np.testing.assert_allclose(rows[:, 1:4], t - R @ np.array([0.1, 0.0, 0.0]), atol=1e-8)  # T_world_rect0 · T_body_rect0⁻¹
 
 
-def _vio(*, initialized: bool, sigma: float = 0.02, excitation: float = 0.6, rotation: float = 90.0, truth: float | None = None):
+def _vio(*, initialized: bool, sigma: float = 0.02, excitation: float = 0.6, rotation: float = 90.0, truth: float | None = None, refinements: list | None = None):
     import dataclasses
 
     from backend.pipeline.snapshot import ImuState
@@ -76,6 +76,8 @@ def _vio(*, initialized: bool, sigma: float = 0.02, excitation: float = 0.6, rot
     report = {"span_s": 4.75, "quality": {"scale_rel_std": sigma, "accel_excitation_mps2": excitation, "rotation_span_deg": rotation}}
     if truth is not None:
         report["joint_scale_error_pct"] = truth
+    if refinements is not None:
+        report["refinements"] = refinements
     imu = ImuState(
         initialized=initialized,
         status="structure from motion: 6 keyframes over 1.1 s" if not initialized else "initialized",
@@ -100,3 +102,17 @@ def test_the_vio_start_says_how_well_its_scale_is_known_and_why_it_is_poor() -> 
     )
     assert "the start's motion barely constrains it" in panels.vio_start_note(_vio(initialized=True, sigma=0.14))
     assert "`--speed 2`" in poor and "Reset" in poor
+
+
+def test_the_vio_start_note_and_panel_follow_the_scale_refinement() -> None:
+    """After the start's scale is refined the note gives the refinement's keyframe, factor, σ and
+    error, and warns only while that σ is large; the IMU panel lists each refinement."""
+    refined = {"keyframe": 60, "after_start_s": 15.1, "scale": 0.985, "scale_rel_std": 0.04, "scale_error_pct": -0.5}
+    snap = _vio(initialized=True, sigma=0.25, excitation=0.12, rotation=8.0, refinements=[refined])
+    assert panels.vio_start_note(snap) == (
+        "VIO initialized at keyframe 24 (4.8 s of motion); its scale refined at keyframe 60 (15.1 s after the start) ×0.985, known to ±4 % (1σ), -0.5 % against the truth"
+    )
+    assert "refined at keyframe 60 (15.1 s after) ×0.985, -0.50 % against the truth" in panels.imu_markdown(snap)
+    early = panels.vio_start_note(_vio(initialized=True, sigma=0.25, refinements=[{**refined, "scale_rel_std": 0.09}]))
+    assert early.startswith("**uncertain VIO scale**: ") and "±9 %" in early
+    assert "(15 s after the start)" in panels.vio_start_note(_vio(initialized=True, sigma=0.25))

@@ -98,3 +98,15 @@ def test_a_reobserved_landmark_takes_the_newest_descriptor_and_claims_its_featur
     np.testing.assert_array_equal(m.points.desc[1], descriptors[2])
     np.testing.assert_array_equal(m.points.desc[0], np.zeros(32, np.uint8))
     np.testing.assert_array_equal(m.points.n_kf[:], [1, 2])
+
+
+def test_scaled_frame_offsets_follow_a_scaled_segment_only() -> None:
+    """VIO's start scales the segment's map: the frames tracked against its keyframes keep
+    their place in it (their offsets scaled), those of an older segment stay."""
+    m = _map_with_two_keyframes()
+    m.record_frame(3, 1, np.eye(3), np.array([0.5, 0.0, 0.0]))
+    m.scale_frame_offsets(first_keyframe=1, scale=0.5)
+    m.t_world_keyframe[1] = 0.5 * m.t_world_keyframe[1]  # the segment from keyframe 1, scaled about the origin
+    _, _, _, t = m.frame_poses()
+    np.testing.assert_allclose(t[1], [0.1, 0.0, 0.0])  # keyframe 0's frame: not moved
+    np.testing.assert_allclose(t[3], [0.35, 0.0, 0.0])  # 0.5 · (0.2 + 0.5)

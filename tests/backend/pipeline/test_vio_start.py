@@ -1,4 +1,5 @@
-"""The VIO start's choice of keyframes for the visual-inertial alignment (`vio_start`)."""
+"""The VIO start (`vio_start`): its choice of keyframes for the visual-inertial alignment, and
+the similarity that scales a map segment (the start and its scale refinement)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,11 @@ from backend.data.scenes import builtin_scene
 from backend.data.synthetic import SequenceSettings, SyntheticSequence
 from backend.geometry import line as line_geo
 from backend.geometry import so3
-from backend.pipeline.vio_start import similarity_plucker, thinned
+from backend.geometry.camera import PinholeCamera
+from backend.mapping.map import Map
+from backend.optim import inertial
+from backend.pipeline.imu_window import InertialState
+from backend.pipeline.vio_start import scale_segment, similarity_plucker, thinned
 from backend.vio.alignment import AlignmentSettings, align_visual_inertial
 from tests.backend.vio.test_alignment import VISUAL_SCALE, keyframes
 
@@ -56,3 +61,92 @@ def test_similarity_plucker_moves_lines_as_their_points_and_keeps_far_ones_finit
     far_m, far_v = np.array([[0.0, 1e43, 0.0]]), np.array([[1.0, 0.0, 0.0]])
     m_far, v_far = similarity_plucker(far_m, far_v, scale=scale, R=R, c=c)
     assert np.all(np.isfinite(m_far)) and np.allclose(np.linalg.norm(v_far), 1.0)
+
+
+def _segment_map() -> tuple[Map, InertialState]:
+    """Two keyframes before the segment, three in it, a point on a plane and a line in it,
+    a point of the old segment, frames between the keyframes, and a marginalization prior."""
+    m = Map(PinholeCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, width=640, height=480, baseline=0.1))
+    state = InertialState()
+    for k in range(5):
+        m.add_keyframe(2 * k, so3.exp(np.array([0.0, 0.1 * k, 0.0])), np.array([0.3 * k, 0.1, 0.0]), stamp_ns=k * 10**8, T_world_true=None)
+        m.record_frame(2 * k + 1, k, np.eye(3), np.array([0.3 * k + 0.1, 0.2, 0.0]))
+        state.velocity.append(np.array([1.0, 0.0, 0.5]))
+        state.bias.append(np.full(6, 0.01))
+    m.segment_start = 2
+    m.planes.n.append(np.array([0.0, 0.0, 1.0]))
+    m.planes.d.append(-2.0)  # z = 2
+    m.planes.consensus.append((1.0, 10))
+    m.points.add(
+        p_world=np.array([[1.0, 1.0, 2.0], [5.0, 5.0, 5.0]]),
+        ok=np.ones(2, bool),
+        anchor=np.array([3, 0]),
+        anchor_uv=np.zeros((2, 2)),
+        anchor_ur=np.zeros(2),
+        plane=np.array([0, -1]),
+        desc=np.zeros((2, 32), np.uint8),
+        n_kf=np.ones(2, np.int64),
+        born=np.array([3, 0]),
+    )
+    lm, lv = line_geo.from_points(np.array([[0.0, 0.0, 2.0]]), np.array([[1.0, 0.0, 2.0]]))
+    m.lines.add(
+        m=lm,
+        v=lv,
+        ok=np.ones(1, bool),
+        anchor=np.array([2]),
+        anchor_uv=np.zeros((1, 4)),
+        anchor_ruv=np.zeros((1, 4)),
+        plane=np.array([0]),
+        desc=np.zeros((1, 32), np.uint8),
+        n_kf=np.ones(1, np.int64),
+        born=np.array([2]),
+    )
+    state.prior = inertial.LinearPrior(
+        pose_index=np.array([2]),
+        inertial_index=np.array([2]),
+        plane_index=np.array([0]),
+        R=m.R_world_keyframe[2][None].copy(),
+        t=m.t_world_keyframe[2][None].copy(),
+        inertial=np.r_[state.velocity[2], state.bias[2]][None],
+        plane_n=np.array([[0.0, 0.0, 1.0]]),
+        plane_d=np.array([-2.0]),
+        A=np.eye(18),
+        b=np.zeros(18),
+    )
+    return m, state
+
+
+def test_scale_segment_scales_the_segment_about_a_point_and_keeps_it_consistent() -> None:
+    """The scale refinement's similarity: the segment's keyframes, frames, landmarks, plane,
+    velocities and the prior's linearization point scaled about the newest keyframe, which
+    stays; landmarks stay on their plane; the old segment, rotations and biases stay."""
+    m, state = _segment_map()
+    before = m.copy()
+    _, _, R_frames, t_frames = m.frame_poses()
+    c = m.t_world_keyframe[4].copy()
+    scale_segment(m, state, scale=1.25, center_world=c)
+
+    def moved(x: np.ndarray) -> np.ndarray:
+        return c + 1.25 * (x - c)
+
+    np.testing.assert_allclose(m.t_world_keyframe[:2], before.t_world_keyframe[:2])
+    np.testing.assert_allclose(m.t_world_keyframe[2:], moved(before.t_world_keyframe[2:]))
+    np.testing.assert_allclose(m.t_world_keyframe[4], c)
+    np.testing.assert_allclose(m.R_world_keyframe[:], before.R_world_keyframe[:])
+    _, ref, R_after, t_after = m.frame_poses()
+    np.testing.assert_allclose(t_after[ref < 2], t_frames[ref < 2], atol=1e-12)
+    np.testing.assert_allclose(t_after[ref >= 2], moved(t_frames[ref >= 2]), atol=1e-12)
+    np.testing.assert_allclose(R_after, R_frames)
+    np.testing.assert_allclose(m.points.p_world[0], moved(np.array([1.0, 1.0, 2.0])))
+    np.testing.assert_allclose(m.points.p_world[1], [5.0, 5.0, 5.0])
+    n, d = m.planes.n[0], m.planes.d[0]
+    assert abs(n @ m.points.p_world[0] + d) < 1e-12
+    p_line = np.cross(m.lines.v[0], m.lines.m[0])  # the line's point nearest the origin (m = p × v, |v| = 1)
+    assert abs(n @ p_line + d) < 1e-12 and abs(n @ m.lines.v[0]) < 1e-12
+    np.testing.assert_allclose(state.velocity[:2], [[1.0, 0.0, 0.5]] * 2)
+    np.testing.assert_allclose(state.velocity[2:], [[1.25, 0.0, 0.625]] * 3)
+    np.testing.assert_allclose(state.bias, [np.full(6, 0.01)] * 5)
+    assert state.prior is not None
+    np.testing.assert_allclose(state.prior.t[0], m.t_world_keyframe[2])
+    np.testing.assert_allclose(state.prior.inertial[0], np.r_[state.velocity[2], state.bias[2]])
+    np.testing.assert_allclose(state.prior.plane_d, [d])
