@@ -109,4 +109,4 @@ def test_scaled_frame_offsets_follow_a_scaled_segment_only() -> None:
     m.t_world_keyframe[1] = 0.5 * m.t_world_keyframe[1]  # the segment from keyframe 1, scaled about the origin
     _, _, _, t = m.frame_poses()
     np.testing.assert_allclose(t[1], [0.1, 0.0, 0.0])  # keyframe 0's frame: not moved
-    np.testing.assert_allclose(t[3], [0.35, 0.0, 0.0])  # 0.5 · (0.2 + 0.5)
+    np.testing.assert_allclose(t[3], [0.25, 0.0, 0.0])  # tracked at 0.5 m: 0.5 · 0.5
