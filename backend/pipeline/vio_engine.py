@@ -391,6 +391,12 @@ class VioEngine(CoreEngine):
             self._start_segment()
         elif k > self.start.keyframe:
             self.start.refine(k, StartContext(self.map, self.inertial, self.imu_model, self.inertial_source, self.settings, c.messages))
+        if s.frames_by_imu and self.inertial.initialized:
+            # At the start every interval of the segment so far (its frames were tracked in the
+            # monocular scale), then the newest.
+            first = self.map.segment_start + 1 if self.start.keyframe == k else k
+            for j in range(max(first, self.map.segment_start + 1), k + 1):
+                self._frames_by_imu(j)
         c.follow_keyframe(i, k)
 
         image = None
@@ -457,6 +463,31 @@ class VioEngine(CoreEngine):
         obs = KeyframeObservations(point_id, kp.uv[point_kp], np.full(len(point_id), np.nan), line_id, line_uv, np.full((len(line_id), 4), np.nan))
         self.map.observations[k] = obs
         return obs, new_points, new_lines
+
+    def _frames_by_imu(self, k: int) -> None:
+        """The frames tracked between keyframes k - 1 and k (their reference is k - 1): poses
+        from the IMU between the two keyframes' solved states instead of each frame's own
+        monocular PnP (VioSettings' `frames_by_imu`). Keyframe k - 1's state is propagated
+        to each frame's time and its disagreement with keyframe k's solved pose at k (rotation
+        in world axes, position, m) is spread linearly in time over the interval."""
+        m = self.map
+        idx = np.flatnonzero(m.frame_reference[:] == k - 1)
+        idx = idx[m.frame_index[idx] != m.keyframe_frame[k - 1]]
+        if not len(idx):
+            return
+        v, b = self.inertial.velocity[k - 1], self.inertial.bias[k - 1]
+        t0_ns, t1_ns = int(m.keyframe_stamp_ns[k - 1]), int(m.keyframe_stamp_ns[k])
+        R_k, t_k, _ = self.imu_model.predict(m, k - 1, t1_ns, v, b)
+        d_rot = so3.log(m.R_world_keyframe[k] @ R_k.T)
+        d_pos = m.t_world_keyframe[k] - t_k
+        R_ref, t_ref = m.R_world_keyframe[k - 1], m.t_world_keyframe[k - 1]
+        for j in idx:
+            t_ns = int(self.data_source.timestamps_ns[int(m.frame_index[j])])
+            R_p, t_p, _ = self.imu_model.predict(m, k - 1, t_ns, v, b)
+            a = (t_ns - t0_ns) / max(t1_ns - t0_ns, 1)
+            R = so3.exp(a * d_rot) @ R_p
+            m.R_reference_frame[j] = R_ref.T @ R
+            m.t_reference_frame[j] = R_ref.T @ (t_p + a * d_pos - t_ref)
 
     # ------------------------------------------------------------------ followed features (before the initialization)
 

@@ -62,7 +62,10 @@ class VioSettings(StereoSettings):
     `failure_disagreeing_frames` frames in a row whose visual pose, supported by at least
     `failure_support_inliers` inliers, is more than `failure_prediction_m` /
     `failure_prediction_deg` from the IMU's prediction: the inertial state is wrong, and the
-    VIO starts again (a new map segment) from the last keyframe's pose rather than run on."""
+    VIO starts again (a new map segment) from the last keyframe's pose rather than run on.
+    Once initialized, the frames between two keyframes take their poses from the IMU between
+    the keyframes' solved states where `frames_by_imu` (`VioEngine._frames_by_imu`), not from
+    their own monocular PnP."""
 
     window: int = 20  # VIO's keyframes are denser than stereo's (backend.pipeline.factory.DEFAULT_WINDOW)
     init_window: int = 40  # keyframes optimized together before the initialization (at least `window`)
@@ -116,4 +119,5 @@ class VioSettings(StereoSettings):
     alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.3, accel_bias_sigma=0.2)
     refine_after_s: tuple[float, ...] = (15.0,)
     refine_window: int = 40
+    frames_by_imu: bool = True
     refine_alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.15, accel_bias_sigma=0.2, scale_range=(0.5, 2.0))

@@ -85,6 +85,9 @@ def test_vio_at_the_default_speed_starts_soon_and_refines_its_scale(tmp_path: pa
     assert abs(refined["scale_error_pct"]) < 3.0 and abs(refined["scale_error_before_pct"]) < 3.0  # here it was good already (-0.5 → -1.6 %)
     assert abs(vio["scale_error_pct"]) < 3.0 and vio["ate_after_init_cm"] < 3.0
     assert any("scale refined at keyframe" in line for line in m["messages"])
+    # The frames between keyframes take their poses from the IMU between the solved
+    # keyframes: as accurate as the keyframes (their own monocular PnP added about 1 cm).
+    assert m["ate_rmse_cm"] < m["keyframe_ate_rmse_cm"] + 0.2
     # Seed 0's path accelerates from the start (0.25 m/s² averaged over its first second):
     # the excitation onset is the first frame, and the start is timed from it.
     assert vio["excitation_onset_s"] == 0.0 and vio["init_after_excitation_s"] == vio["init_time_s"]
