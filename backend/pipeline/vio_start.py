@@ -11,6 +11,7 @@ Frames and units: world z up, metres, seconds; keyframe ids are the map's.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
@@ -22,7 +23,7 @@ from backend.optim import inertial
 from backend.pipeline.imu_window import ImuModel, InertialState
 from backend.pipeline.snapshot import ImuState, frozen
 from backend.pipeline.vio_settings import VioSettings
-from backend.vio.alignment import Alignment, align_visual_inertial
+from backend.vio.alignment import Alignment, AlignmentSettings, align_visual_inertial
 
 
 def _yaw_between(R_target: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -98,11 +99,7 @@ class VioStart:
         if n_kf < s.init_keyframes or span < s.init_min_span_s:
             self.status = f"structure from motion: {n_kf} keyframes over {span:.1f} s (alignment after {s.init_keyframes} keyframes over {s.init_min_span_s:.1f} s)"
             return
-        used = thinned(ctx.map.keyframe_stamp_ns[kfs], min_interval_s=min(s.init_alignment_interval_s, span / (s.init_keyframes - 1)))
-        R_v, t_v = ctx.map.R_world_keyframe[kfs[used]], ctx.map.t_world_keyframe[kfs[used]]
-        R_c0 = np.einsum("ji,njk->nik", R_v[0], R_v)
-        p_c0 = np.einsum("ji,nj->ni", R_v[0], t_v - t_v[0])
-        result: Alignment = align_visual_inertial(ctx.map.keyframe_stamp_ns[kfs[used]], R_c0, p_c0, ctx.model.imu, T_body_cam0=ctx.model.T_body_camera, noise=ctx.model.noise, settings=s.alignment)
+        used, result = _align(kfs, span, ctx, s.alignment)
         self.report = {"keyframes": n_kf, "aligned_keyframes": len(used), "span_s": span, **result.to_dict()}
         if not result.success:
             self.status = f"alignment rejected at keyframe {k} ({n_kf} keyframes, {span:.1f} s): {result.reason}; retrying"
@@ -153,25 +150,7 @@ class VioStart:
             return scale * ((p_v - t_v0) @ R_v0) @ R_w_c0.T + t_w_c0
 
         R_wv = R_w_c0 @ R_v0.T
-        seg = np.arange(ctx.map.segment_start, len(ctx.map))
-        ctx.map.R_world_keyframe[seg] = np.einsum("ij,njk->nik", R_wv, ctx.map.R_world_keyframe[seg])
-        ctx.map.t_world_keyframe[seg] = to_world(ctx.map.t_world_keyframe[seg])
-        ctx.map.scale_frame_offsets(first_keyframe=ctx.map.segment_start, scale=scale)
-        P, Lm = ctx.map.points, ctx.map.lines
-        pts = np.flatnonzero(P.anchor[:] >= ctx.map.segment_start)
-        P.p_world[pts] = to_world(P.p_world[pts])
-        segment_lines = np.flatnonzero(Lm.anchor[:] >= ctx.map.segment_start)
-        # Lines never triangulated (v = 0) or left degenerate by a solve (not finite) stay as they are.
-        m_v, v_v = Lm.m[segment_lines], Lm.v[segment_lines]
-        lns = segment_lines[np.all(np.isfinite(m_v), axis=1) & (np.linalg.norm(v_v, axis=1) > 0)]  # NaN > 0 is False
-        if len(lns):
-            Lm.m[lns], Lm.v[lns] = similarity_plucker(Lm.m[lns], Lm.v[lns], scale=scale, R=R_wv, c=t_w_c0 - scale * (R_wv @ t_v0))
-        used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[segment_lines]]))
-        for q in used_planes[used_planes >= 0]:
-            n_v, d_v = ctx.map.planes.n[q], ctx.map.planes.d[q]
-            n_w = R_wv @ n_v
-            x_v = -d_v * n_v  # a point of the plane
-            ctx.map.planes.n[q], ctx.map.planes.d[q] = n_w, float(-n_w @ to_world(x_v[None])[0])
+        similarity_segment(ctx.map, moved=to_world, scale=scale, R=R_wv, c=t_w_c0 - scale * (R_wv @ t_v0))
         for j, kf in enumerate(kfs):
             ctx.inertial.velocity[kf] = vel_world[j].copy()
         # The keyframes between the aligned ones (thinned): velocity by the IMU from the previous.
@@ -215,11 +194,8 @@ class VioStart:
         span = (int(m.keyframe_stamp_ns[k]) - int(m.keyframe_stamp_ns[first])) * 1e-9
         if len(kfs) < s.init_keyframes:
             return
-        used = kfs[thinned(m.keyframe_stamp_ns[kfs], min_interval_s=min(s.init_alignment_interval_s, span / (s.init_keyframes - 1)))]
-        R_v, t_v = m.R_world_keyframe[used], m.t_world_keyframe[used]
-        R_c0 = np.einsum("ji,njk->nik", R_v[0], R_v)
-        p_c0 = np.einsum("ji,nj->ni", R_v[0], t_v - t_v[0])
-        result = align_visual_inertial(m.keyframe_stamp_ns[used], R_c0, p_c0, ctx.model.imu, T_body_cam0=ctx.model.T_body_camera, noise=ctx.model.noise, settings=s.refine_alignment)
+        kept, result = _align(kfs, span, ctx, s.refine_alignment)
+        used = kfs[kept]
         if not result.success:
             return
         sigma = float(result.quality.scale_rel_std)
@@ -299,6 +275,33 @@ class VioStart:
         return out
 
 
+def similarity_segment(the_map: Map, *, moved: Callable[[np.ndarray], np.ndarray], scale: float, R: np.ndarray, c: np.ndarray) -> None:
+    """The map segment under the similarity x ↦ scale·R·x + c (world frame, m), which `moved`
+    applies to positions (N, 3): keyframe rotations and positions, the frames'
+    offsets from their keyframes, the points and lines anchored in the segment, and the
+    planes they lie on. Lines never triangulated (v = 0) or left degenerate by a solve (not
+    finite) stay as they are."""
+    s0 = the_map.segment_start
+    seg = np.arange(s0, len(the_map))
+    the_map.R_world_keyframe[seg] = np.einsum("ij,njk->nik", R, the_map.R_world_keyframe[seg])
+    the_map.t_world_keyframe[seg] = moved(the_map.t_world_keyframe[seg])
+    the_map.scale_frame_offsets(first_keyframe=s0, scale=scale)
+    P, Lm = the_map.points, the_map.lines
+    pts = np.flatnonzero(P.anchor[:] >= s0)
+    P.p_world[pts] = moved(P.p_world[pts])
+    segment_lines = np.flatnonzero(Lm.anchor[:] >= s0)
+    m_v, v_v = Lm.m[segment_lines], Lm.v[segment_lines]
+    lns = segment_lines[np.all(np.isfinite(m_v), axis=1) & (np.linalg.norm(v_v, axis=1) > 0)]  # NaN > 0 is False
+    if len(lns):
+        Lm.m[lns], Lm.v[lns] = similarity_plucker(Lm.m[lns], Lm.v[lns], scale=scale, R=R, c=c)
+    used_planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[segment_lines]]))
+    for q in used_planes[used_planes >= 0]:
+        n_v, d_v = the_map.planes.n[q], the_map.planes.d[q]
+        n_w = R @ n_v
+        x_v = -d_v * n_v  # a point of the plane
+        the_map.planes.n[q], the_map.planes.d[q] = n_w, float(-n_w @ moved(x_v[None])[0])
+
+
 def scale_segment(the_map: Map, state: InertialState, *, scale: float, center_world: np.ndarray) -> None:
     """The map segment under x ↦ c + scale·(x - c) (world frame, c = `center_world`, m):
     keyframe positions, the points and lines anchored in it, the planes they lie on; the
@@ -309,26 +312,12 @@ def scale_segment(the_map: Map, state: InertialState, *, scale: float, center_wo
     def moved(x: np.ndarray) -> np.ndarray:
         return c + scale * (x - c)
 
-    s0 = the_map.segment_start
-    seg = np.arange(s0, len(the_map))
-    the_map.t_world_keyframe[seg] = moved(the_map.t_world_keyframe[seg])
-    the_map.scale_frame_offsets(first_keyframe=s0, scale=scale)
-    P, Lm = the_map.points, the_map.lines
-    pts = np.flatnonzero(P.anchor[:] >= s0)
-    P.p_world[pts] = moved(P.p_world[pts])
-    segment_lines = np.flatnonzero(Lm.anchor[:] >= s0)
-    m_v, v_v = Lm.m[segment_lines], Lm.v[segment_lines]
-    lns = segment_lines[np.all(np.isfinite(m_v), axis=1) & (np.linalg.norm(v_v, axis=1) > 0)]
-    if len(lns):
-        Lm.m[lns], Lm.v[lns] = similarity_plucker(Lm.m[lns], Lm.v[lns], scale=scale, R=np.eye(3), c=(1.0 - scale) * c)
-    planes = np.unique(np.concatenate([P.plane[pts], Lm.plane[segment_lines]]))
+    similarity_segment(the_map, moved=moved, scale=scale, R=np.eye(3), c=(1.0 - scale) * c)
 
     def moved_d(n: np.ndarray, d: float) -> float:
         return float(-n @ moved(-d * n))  # the plane's point nearest the origin, moved
 
-    for q in planes[planes >= 0]:
-        the_map.planes.d[q] = moved_d(the_map.planes.n[q], float(the_map.planes.d[q]))
-    for kf in seg:
+    for kf in range(the_map.segment_start, len(the_map)):
         state.velocity[kf] = scale * state.velocity[kf]
     prior = state.prior
     if prior is not None:
@@ -340,6 +329,21 @@ def scale_segment(the_map: Map, state: InertialState, *, scale: float, center_wo
             inertial=inert,
             plane_d=np.array([moved_d(n, float(d)) for n, d in zip(prior.plane_n, prior.plane_d, strict=True)]).reshape(-1),
         )
+
+
+def _align(kfs: np.ndarray, span_s: float, ctx: StartContext, settings: AlignmentSettings) -> tuple[np.ndarray, Alignment]:
+    """The visual-inertial alignment over keyframes `kfs` (spanning `span_s` seconds), thinned
+    (`thinned`: at least `init_alignment_interval_s` apart, fewer where the span holds fewer
+    than `init_keyframes`), their poses taken relative to the first kept one. Returns the
+    kept indices into `kfs` and the alignment."""
+    s = ctx.settings
+    m = ctx.map
+    kept = thinned(m.keyframe_stamp_ns[kfs], min_interval_s=min(s.init_alignment_interval_s, span_s / (s.init_keyframes - 1)))
+    R_v, t_v = m.R_world_keyframe[kfs[kept]], m.t_world_keyframe[kfs[kept]]
+    R_c0 = np.einsum("ji,njk->nik", R_v[0], R_v)
+    p_c0 = np.einsum("ji,nj->ni", R_v[0], t_v - t_v[0])
+    result = align_visual_inertial(m.keyframe_stamp_ns[kfs[kept]], R_c0, p_c0, ctx.model.imu, T_body_cam0=ctx.model.T_body_camera, noise=ctx.model.noise, settings=settings)
+    return kept, result
 
 
 def _scale_error_pct(kfs: np.ndarray, ctx: StartContext) -> float:
