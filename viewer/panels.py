@@ -106,6 +106,8 @@ def imu_markdown(s: Snapshot) -> str:
         for r in rep.get("refinements", []):
             after = f", {_num(r['scale_error_pct'], 2)} % against the truth" if "scale_error_pct" in r else ""
             figures.append(f"refined at keyframe {r['keyframe']} ({_num(r['after_start_s'], 1)} s after) ×{_num(r['scale'], 3)}{after}")
+        if rejections := rep.get("refinement_rejections"):
+            figures.append(f"{rejections} refinement alignment(s) rejected, the last: {rep.get('refinement_last_rejection', '')}")
         init = f"initialized at keyframe {imu.init_keyframe}: " + ", ".join(figures) + " (against the truth where known)\n\n"
     return f"**IMU** ({'initialized' if imu.initialized else 'not initialized'}): {imu.status}\n\n{init}| | estimate | truth |\n|---|---|---|\n" + "\n".join(rows) + "\n\n"
 

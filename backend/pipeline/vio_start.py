@@ -175,7 +175,8 @@ class VioStart:
         `refine_after_s[i]` seconds after the start, the alignment over the segment's last
         `refine_window` keyframes (thinned as the start's; already metric and gravity-aligned,
         so its scale is the factor still missing), accepted by `refine_alignment` (a tighter
-        σ than the start's). The segment's keyframe positions, landmarks and planes are
+        σ than the start's, and a χ²/dof of at most 1: the keyframes' motion must fit the
+        IMU's). The segment's keyframe positions, landmarks and planes are
         scaled about keyframe k's position, its velocities by the factor, and the
         marginalization prior's linearization point with them (its weights stay); rotations,
         biases and preintegrations are kept. A rejected alignment is tried again at the next
@@ -197,6 +198,8 @@ class VioStart:
         kept, result = _align(kfs, span, ctx, s.refine_alignment)
         used = kfs[kept]
         if not result.success:
+            self.report["refinement_rejections"] = int(self.report.get("refinement_rejections", 0)) + 1  # tried again at the next keyframe
+            self.report["refinement_last_rejection"] = result.reason
             return
         sigma = float(result.quality.scale_rel_std)
         while self.refined < len(s.refine_after_s) and since >= s.refine_after_s[self.refined]:
@@ -205,7 +208,14 @@ class VioStart:
         truth = bool(np.all(ctx.source.ground_truth_valid[m.keyframe_frame[used]]))
         before = _scale_error_pct(used, ctx) if truth else None
         scale_segment(ctx.map, ctx.inertial, scale=scale, center_world=m.t_world_keyframe[k].copy())
-        entry: dict[str, float | int | None] = {"keyframe": k, "after_start_s": since, "aligned_keyframes": len(used), "scale": scale, "scale_rel_std": sigma}
+        entry: dict[str, float | int | None] = {
+            "keyframe": k,
+            "after_start_s": since,
+            "aligned_keyframes": len(used),
+            "scale": scale,
+            "scale_rel_std": sigma,
+            "chi2_per_dof": float(result.quality.chi2_per_dof),
+        }
         if truth:
             entry["scale_error_before_pct"] = before
             entry["scale_error_pct"] = _scale_error_pct(used, ctx)

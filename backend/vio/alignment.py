@@ -71,7 +71,10 @@ Choices, documented:
   gravity magnitude before refinement off by more than `gravity_norm_tolerance` (10 %,
   VINS-Mono's 1 m/s²); scale not positive, outside `scale_range`, or poorly determined
   (relative standard deviation from the least-squares covariance above
-  `max_scale_rel_std`: motion without enough translation, e.g. pure rotation); a gyro bias
+  `max_scale_rel_std`: motion without enough translation, e.g. pure rotation); where
+  `max_chi2_per_dof` is set, a final system whose weighted residual's χ² per degree of
+  freedom exceeds it (the visual poses do not fit the IMU's motion within the noise model,
+  which is pessimistic: consistent data give well below 1); a gyro bias
   above `max_gyro_bias`; a non-finite solution. Rotation alone is not a rejection criterion:
   the gyro bias is observable without rotation, and gravity and scale are judged by the
   checks above; the rotation span is reported in the quality figures.
@@ -108,6 +111,7 @@ class AlignmentSettings:
     max_scale_rel_std: float = 0.03  # σ_s / s from the least-squares covariance
     scale_range: tuple[float, float] = (1e-3, 1e3)  # accepted metric / visual ratio
     max_gyro_bias: float = 0.5  # rad/s, any axis
+    max_chi2_per_dof: float | None = None  # the final system's χ²/dof above this: the visual motion does not fit the IMU's (None: not checked)
     accel_bias_sigma: float | None = None  # m/s², prior σ of the accelerometer bias in step 3 (None: not estimated, as VINS-Mono)
     # Noise of the visual poses, for the weights (and so the scale's standard deviation):
     visual_rotation_sigma_deg: float = 0.2  # degrees, per keyframe and axis
@@ -554,6 +558,8 @@ def align_visual_inertial(
         return result(f"implausible scale {scale:.4g} outside [{settings.scale_range[0]:g}, {settings.scale_range[1]:g}]")
     if not scale_rel_std <= settings.max_scale_rel_std:
         return result(f"scale poorly determined: relative std {scale_rel_std:.3f} > {settings.max_scale_rel_std} (too little translation)")
+    if settings.max_chi2_per_dof is not None and not chi2_dof <= settings.max_chi2_per_dof:
+        return result(f"visual and inertial motion disagree: chi2/dof {chi2_dof:.3g} > {settings.max_chi2_per_dof:g}")
 
     # Step 4: the world frame.
     R_world_c0 = _R_world_c0(gravity_c0, R_c0_body[0])

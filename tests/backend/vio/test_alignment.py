@@ -289,3 +289,24 @@ def test_gravity_magnitude_check() -> None:
     assert "gravity magnitude" in alignment.reason
     assert alignment.quality.gravity_norm_unrefined > 11.0
     assert isinstance(alignment.to_dict()["quality"]["gravity_norm_unrefined"], float)
+
+
+def test_visual_motion_that_does_not_fit_the_imu_is_rejected_by_its_chi2() -> None:
+    """The χ² check (`max_chi2_per_dof`, the VIO's scale refinement sets 1): keyframe positions
+    as noisy as the noise model assumes pass it (χ²/dof well below 1: the model is pessimistic);
+    positions ten times noisier than it, the visual path no longer the IMU's, are rejected
+    with the reason, where the σ check alone accepts them."""
+    seq = sequence("room", speed=2.0)
+    settings = AlignmentSettings(max_scale_rel_std=0.3, max_chi2_per_dof=1.0)
+    good = keyframes(seq, 3.0)
+    fits = align_visual_inertial(good.timestamps_ns, good.R_c0_cam, good.p_c0_cam, seq.imu, T_body_cam0=seq.T_body_cam0, settings=settings)
+    assert fits.success, fits.reason
+    assert fits.quality.chi2_per_dof < 1.0
+    bad = keyframes(seq, 3.0, position_fraction=0.1)
+    loose = align_visual_inertial(bad.timestamps_ns, bad.R_c0_cam, bad.p_c0_cam, seq.imu, T_body_cam0=seq.T_body_cam0, settings=dataclasses.replace(settings, max_chi2_per_dof=None))
+    assert loose.success, loose.reason
+    assert loose.quality.chi2_per_dof > 1.0
+    checked = align_visual_inertial(bad.timestamps_ns, bad.R_c0_cam, bad.p_c0_cam, seq.imu, T_body_cam0=seq.T_body_cam0, settings=settings)
+    assert not checked.success
+    assert checked.reason.startswith("visual and inertial motion disagree: chi2/dof")
+    assert checked.quality.chi2_per_dof == loose.quality.chi2_per_dof
