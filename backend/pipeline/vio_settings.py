@@ -46,7 +46,8 @@ class VioSettings(StereoSettings):
     per cent off: more than the windows' iterations correct) (`alignment`: its acceptance; the scale may be 30 % uncertain, the
     joint solve and the windows with IMU factors refine it, and `refine_after_s` after the
     start the alignment again over the last `refine_window` keyframes, accepted by
-    `refine_alignment` (σ ≤ 15 %, χ²/dof ≤ 1), scales the segment by its factor (`VioStart.refine`); the accelerometer bias is estimated with a 0.2 m/s²
+    `refine_alignment` (σ ≤ 15 %, χ²/dof ≤ 1; a rejected one is tried again `refine_retry_s`
+    later), scales the segment by its factor (`VioStart.refine`); the accelerometer bias is estimated with a 0.2 m/s²
     prior: at 20 % the monocular structure's drift at a slow start passed scales 50-60 % off); the gauge prior's σ (`gauge_sigma_m`, `gauge_sigma_yaw_rad` for
     position and yaw, `gauge_sigma_tilt_rad` for roll and pitch) and the initial bias σ
     (`bias_sigma_accel`, `bias_sigma_gyro`) and velocity σ (`velocity_sigma`); the bias
@@ -119,5 +120,6 @@ class VioSettings(StereoSettings):
     alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.3, accel_bias_sigma=0.2)
     refine_after_s: tuple[float, ...] = (15.0,)
     refine_window: int = 40
+    refine_retry_s: float = 5.0  # a rejected refinement is tried again this much later
     frames_by_imu: bool = True
     refine_alignment: AlignmentSettings = AlignmentSettings(max_scale_rel_std=0.15, accel_bias_sigma=0.2, scale_range=(0.5, 2.0), max_chi2_per_dof=1.0)

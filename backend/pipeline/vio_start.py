@@ -86,6 +86,7 @@ class VioStart:
     keyframe: int = -1
     first: tuple[int, dict] = (-1, {})
     refined: int = 0  # scale refinements done since the last successful start (`refine`)
+    refine_retry_at_s: float = 0.0  # after a rejected refinement: seconds after the start of its next try
 
     def try_initialize(self, k: int, ctx: StartContext) -> None:
         """Visual-inertial alignment over the segment's last `init_window` keyframes, thinned
@@ -109,6 +110,7 @@ class VioStart:
         ctx.inertial.initialized = True
         self.keyframe = k
         self.refined = 0
+        self.refine_retry_at_s = 0.0
         truth = self._init_truth(kfs, result, ctx)
         self.report.update(truth)
         if self.first[0] < 0:
@@ -179,8 +181,10 @@ class VioStart:
         IMU's). The segment's keyframe positions, landmarks and planes are
         scaled about keyframe k's position, its velocities by the factor, and the
         marginalization prior's linearization point with them (its weights stay); rotations,
-        biases and preintegrations are kept. A rejected alignment is tried again at the next
-        keyframe. The start accepts a scale σ of 30 %, which the windows alone correct slowly
+        biases and preintegrations are kept. A rejected alignment is tried again
+        `refine_retry_s` later, not at the next keyframe: each try is a noisy measurement,
+        and trying at every keyframe until one passes the σ bound took the first noisy one
+        that did (CHANGELOG 2026-12-08). The start accepts a scale σ of 30 %, which the windows alone correct slowly
         (their marginalization prior holds the scale); at 5 s as well the refinement was
         noise (CHANGELOG, issue 26)."""
         s = ctx.settings
@@ -188,7 +192,7 @@ class VioStart:
         if self.keyframe < 0 or self.refined >= len(s.refine_after_s):
             return
         since = (int(m.keyframe_stamp_ns[k]) - int(m.keyframe_stamp_ns[self.keyframe])) * 1e-9
-        if since < s.refine_after_s[self.refined]:
+        if since < max(s.refine_after_s[self.refined], self.refine_retry_at_s):
             return
         first = max(m.segment_start, k + 1 - s.refine_window)
         kfs = np.arange(first, k + 1)
@@ -198,8 +202,9 @@ class VioStart:
         kept, result = _align(kfs, span, ctx, s.refine_alignment)
         used = kfs[kept]
         if not result.success:
-            self.report["refinement_rejections"] = int(self.report.get("refinement_rejections", 0)) + 1  # tried again at the next keyframe
+            self.report["refinement_rejections"] = int(self.report.get("refinement_rejections", 0)) + 1  # tried again `refine_retry_s` later
             self.report["refinement_last_rejection"] = result.reason
+            self.refine_retry_at_s = since + s.refine_retry_s
             return
         sigma = float(result.quality.scale_rel_std)
         while self.refined < len(s.refine_after_s) and since >= s.refine_after_s[self.refined]:

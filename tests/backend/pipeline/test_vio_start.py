@@ -150,3 +150,49 @@ def test_scale_segment_scales_the_segment_about_a_point_and_keeps_it_consistent(
     np.testing.assert_allclose(state.prior.t[0], m.t_world_keyframe[2])
     np.testing.assert_allclose(state.prior.inertial[0], np.r_[state.velocity[2], state.bias[2]])
     np.testing.assert_allclose(state.prior.plane_d, [d])
+
+
+def test_a_rejected_scale_refinement_is_tried_again_after_refine_retry_s(monkeypatch) -> None:
+    """`VioStart.refine` tries at `refine_after_s` and, after a rejected alignment, not at
+    every keyframe but `refine_retry_s` later (each try is a noisy measurement: trying at
+    every keyframe until one passes the σ bound picks the noisiest). Keyframes every 0.1 s
+    here, the alignment rejected until 17 s after the start: tried at 15 and 20 s, applied at
+    20 s; with the retry sooner than the next keyframe it is applied at 17 s, after 20 rejected tries."""
+    import dataclasses
+    import types
+
+    from backend.pipeline import vio_start
+    from backend.pipeline.vio_settings import VioSettings
+
+    stamps_ns = np.arange(400) * 100_000_000
+    the_map = types.SimpleNamespace(segment_start=0, keyframe_stamp_ns=stamps_ns, keyframe_frame=np.arange(400), t_world_keyframe=np.zeros((400, 3)))
+    source = types.SimpleNamespace(ground_truth_valid=np.zeros(400, dtype=bool))
+    tried: list[float] = []
+    scaled: list[float] = []
+
+    def fake_align(kfs, span_s, ctx, settings):
+        since = 1e-9 * float(stamps_ns[kfs[-1]])
+        tried.append(round(since, 1))
+        ok = since >= 17.0
+        quality = types.SimpleNamespace(scale_rel_std=0.05, chi2_per_dof=0.1)
+        return np.arange(len(kfs)), types.SimpleNamespace(success=ok, reason="" if ok else "scale poorly determined: relative std 0.2 > 0.15", scale=1.1, quality=quality)
+
+    monkeypatch.setattr(vio_start, "_align", fake_align)
+    monkeypatch.setattr(vio_start, "scale_segment", lambda the_map, state, *, scale, center_world: scaled.append(scale))
+
+    def run(settings: VioSettings) -> vio_start.VioStart:
+        tried.clear()
+        scaled.clear()
+        start = vio_start.VioStart(keyframe=0)
+        ctx = types.SimpleNamespace(map=the_map, inertial=None, source=source, settings=settings, messages=[])
+        for k in range(1, 400):
+            start.refine(k, ctx)
+        return start
+
+    start = run(VioSettings())
+    assert tried == [15.0, 20.0] and scaled == [1.1]
+    assert start.report["refinement_rejections"] == 1 and start.report["refinements"][0]["after_start_s"] == 20.0
+    assert start.report["refinement_last_rejection"].startswith("scale poorly determined")
+    eager = run(dataclasses.replace(VioSettings(), refine_retry_s=0.05))
+    assert tried[0] == 15.0 and tried[-1] == 17.0 and len(tried) == 21 and scaled == [1.1]
+    assert eager.report["refinement_rejections"] == 20
