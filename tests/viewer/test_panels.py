@@ -114,7 +114,7 @@ def test_the_vio_start_note_and_panel_follow_the_scale_refinement() -> None:
     )
     assert "refined at keyframe 60 (15.1 s after) ×0.985, -0.50 % against the truth" in panels.imu_markdown(snap)
     assert "rejected" not in panels.imu_markdown(snap)
-    # Alignments the refinement rejected (tried again at the next keyframe) are counted, with the last reason.
+    # Alignments the refinement rejected (tried again `refine_retry_s` later) are counted, with the last reason.
     snap.imu.report.update(refinement_rejections=3, refinement_last_rejection="visual and inertial motion disagree: chi2/dof 5.63 > 1")
     assert "3 refinement alignment(s) rejected, the last: visual and inertial motion disagree: chi2/dof 5.63 > 1" in panels.imu_markdown(snap)
     early = panels.vio_start_note(_vio(initialized=True, sigma=0.25, refinements=[{**refined, "scale_rel_std": 0.09}]))
