@@ -49,6 +49,25 @@ def test_a_bare_wall_frame_that_orb_cannot_track_is_placed_by_flow() -> None:
     assert t_err < 0.005 and r_err < 0.1  # the frame moved 9 mm
 
 
+def test_a_strong_corner_in_view_does_not_hide_the_wall_grain() -> None:
+    """A dark checkered post in a corner of the reference (as `low-texture` seed 3's frame 184
+    has) makes the strongest corner ~100× the grain's: at a quality level relative to it
+    (0.001, the old default) only the post's corners remain, too few to place the frame."""
+    seq = _low_texture()
+    reference = _reference(seq, 8)
+    checker = np.kron((np.indices((8, 4)).sum(axis=0) % 2) * 255, np.ones((8, 8), np.uint8)).astype(np.uint8)  # 64 x 32 px
+    post_left, post_right = reference.left.copy(), reference.right.copy()
+    post_left[-64:, :32] = checker
+    post_right[-64:, :32] = checker
+    with_post = dataclasses.replace(reference, left=post_left, right=post_right)
+    left, right = seq.rectified_pair(9)
+    assert not track_by_flow(seq.camera, with_post, left, right, settings=FlowTrackSettings(quality_level=1e-3)).ok
+    pose = track_by_flow(seq.camera, with_post, left, right, settings=FlowTrackSettings())
+    assert pose.ok and pose.inliers >= 40
+    t_err, r_err = _errors(seq, 9, pose.R_world_camera, pose.t_world_camera)
+    assert t_err < 0.005 and r_err < 0.1
+
+
 def test_a_frame_without_texture_or_a_loose_translation_is_not_placed() -> None:
     seq = _low_texture()
     reference = _reference(seq, 8)
