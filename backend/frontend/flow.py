@@ -91,6 +91,72 @@ def follow(image_prev: np.ndarray, image: np.ndarray, uv_prev: np.ndarray, camer
     return uv, ok
 
 
+def follow_along_row(
+    left: np.ndarray,
+    right: np.ndarray,
+    uv_left: np.ndarray,
+    camera: PinholeCamera,
+    *,
+    min_disparity_px: float,
+    max_disparity_px: float,
+    half_window_px: int = 5,
+    min_score: float = 0.7,
+    uniqueness: float = 0.05,
+    max_back_px: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels `uv_left` (N, 2) of the rectified `left` image found in `right` (both 8-bit grey,
+    same size): a search along the pixel's row over disparities [`min_disparity_px`,
+    `max_disparity_px`] (normalized cross-correlation of a (2·`half_window_px` + 1)² patch;
+    the best score at least `min_score` and above every score more than 2 px from it by
+    `uniqueness`: an edge along the row or a repeated pattern has no one disparity), then
+    Lucas-Kanade from there for the sub-pixel position, forward-backward checked within
+    `max_back_px`. Pyramidal flow started at zero disparity, as `follow` does, converges on
+    the wrong grain of a bare wall where the disparity is tens of pixels (`low-texture` seed 3:
+    the median disparity found 0.3-5 px where the truth is ~33). Returns the pixels in
+    `right` (N, 2) and whether each was found."""
+    n = len(uv_left)
+    uv_right = np.full((n, 2), np.nan)
+    found = np.zeros(n, bool)
+    if n == 0:
+        return uv_right, found
+    h = int(half_window_px)
+    height, width = left.shape[:2]
+    d_min = max(0, int(np.floor(min_disparity_px)))
+    d_max = int(np.ceil(max_disparity_px))
+    guess = np.full((n, 2), np.nan, np.float32)
+    for j, (u, v) in enumerate(np.rint(uv_left).astype(np.int64)):
+        if not (h <= v < height - h and h <= u < width - h):
+            continue
+        lo = max(h, u - d_max)  # leftmost centre in the right image
+        hi = u - d_min  # rightmost centre
+        if hi - lo < 1:
+            continue
+        template = left[v - h : v + h + 1, u - h : u + h + 1]
+        strip = right[v - h : v + h + 1, lo - h : hi + h + 1]
+        score = cv2.matchTemplate(strip, template, cv2.TM_CCOEFF_NORMED).ravel()  # centre lo + k
+        if not np.all(np.isfinite(score)):
+            continue  # a flat patch: no correlation
+        best = int(np.argmax(score))
+        far = np.abs(np.arange(len(score)) - best) > 2
+        if score[best] < min_score or (np.any(far) and score[far].max() > score[best] - uniqueness):
+            continue
+        guess[j] = (lo + best + (uv_left[j, 0] - u), uv_left[j, 1])
+    ok = np.all(np.isfinite(guess), axis=1)
+    if not ok.any():
+        return uv_right, found
+    p0 = uv_left[ok].astype(np.float32).reshape(-1, 1, 2)
+    params = dict(winSize=_LK["winSize"], maxLevel=1, criteria=_LK["criteria"])
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(left, right, p0, guess[ok].reshape(-1, 1, 2), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)  # type: ignore[call-overload]
+    back, st_b, _ = cv2.calcOpticalFlowPyrLK(right, left, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)  # type: ignore[call-overload]
+    uv = p1.reshape(-1, 2).astype(float)
+    good = (st.ravel() == 1) & (st_b.ravel() == 1) & (np.linalg.norm((back - p0).reshape(-1, 2), axis=1) < max_back_px)
+    good &= np.all(np.isfinite(uv), axis=1) & camera.in_image(uv)
+    idx = np.flatnonzero(ok)
+    uv_right[idx[good]] = uv[good]
+    found[idx[good]] = True
+    return uv_right, found
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class FlowTracks:
     """Candidate features followed since the keyframe that detected them: `anchor` (N,)

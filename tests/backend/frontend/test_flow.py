@@ -7,7 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from backend.frontend.flow import _LK, FlowTracks, follow, gain_matched, gain_ratio
+from backend.frontend.flow import _LK, FlowTracks, follow, follow_along_row, gain_matched, gain_ratio
 from backend.geometry import so3
 from backend.geometry.camera import PinholeCamera
 
@@ -48,6 +48,41 @@ def test_follow_started_from_the_gyro_rotation_keeps_features_through_a_fast_tur
     both = ok & ok_off
     assert both.mean() > 0.85
     assert np.median(np.linalg.norm(uv_off[both] - truth[both], axis=1)) < 0.2
+
+
+def _grain_pair(*, disparity_px: int, amplitude: float) -> tuple[np.ndarray, np.ndarray]:
+    """A rectified pair of a fronto-parallel wall's faint paint grain (grey 172 ± `amplitude`),
+    every pixel `disparity_px` to the left in the right image."""
+    rng = np.random.default_rng(0)
+    grain = cv2.GaussianBlur(rng.normal(0.0, 1.0, (480, 752 + disparity_px + 8)).astype(np.float32), (0, 0), 1.0)
+    wide = np.clip(172.0 + amplitude * grain / grain.std(), 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(wide[:, :752]), np.ascontiguousarray(wide[:, disparity_px : disparity_px + 752])
+
+
+def test_the_search_along_the_row_finds_a_bare_wall_disparity_that_flow_from_zero_misses() -> None:
+    left, right = _grain_pair(disparity_px=33, amplitude=3.0)  # ~1.5 m away on the rendered rooms' rig
+    uv = cv2.goodFeaturesToTrack(left, 300, 1e-5, 12).reshape(-1, 2).astype(float)
+    uv = uv[uv[:, 0] > 60]  # the match lies inside the right image
+
+    def correct(uv_right: np.ndarray, found: np.ndarray) -> np.ndarray:
+        return found & (np.abs(uv[:, 0] - uv_right[:, 0] - 33.0) < 0.2) & (np.abs(uv_right[:, 1] - uv[:, 1]) < 0.2)
+
+    assert correct(*follow(left, right, uv, CAMERA)).mean() < 0.2  # the pyramid's flow started at zero disparity
+    uv_right, found = follow_along_row(left, right, uv, CAMERA, min_disparity_px=1.0, max_disparity_px=250.0)
+    assert correct(uv_right, found).mean() > 0.95 and np.array_equal(correct(uv_right, found), found)
+    # Outside the range searched nothing is found rather than a wrong disparity.
+    _, found_near = follow_along_row(left, right, uv, CAMERA, min_disparity_px=1.0, max_disparity_px=20.0)
+    assert found_near.mean() < 0.05
+
+
+def test_the_search_along_the_row_refuses_edges_along_it_and_flat_patches() -> None:
+    stripes = np.tile((128 + 60 * np.sin(np.arange(480) / 3.0))[:, None], (1, 752)).astype(np.uint8)  # the same along every row
+    flat = np.full((480, 752), 128, np.uint8)
+    uv = np.array([[300.0, 200.0], [400.0, 100.0], [700.0, 300.0]])
+    for image in (stripes, flat):
+        uv_right, found = follow_along_row(image, image, uv, CAMERA, min_disparity_px=1.0, max_disparity_px=250.0)
+        assert not found.any() and np.isnan(uv_right).all()
+    assert follow_along_row(flat, flat, np.zeros((0, 2)), CAMERA, min_disparity_px=1.0, max_disparity_px=250.0)[0].shape == (0, 2)
 
 
 def test_follow_refuses_what_does_not_come_back_and_what_leaves_the_image() -> None:
