@@ -62,20 +62,34 @@ def gain_matched(image_reference: np.ndarray, image: np.ndarray, *, tolerance: f
     return cv2.convertScaleAbs(image, alpha=ratio)
 
 
-def follow(image_prev: np.ndarray, image: np.ndarray, uv_prev: np.ndarray, camera: PinholeCamera, *, R_prev_cur: np.ndarray | None = None, max_back_px: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def follow(
+    image_prev: np.ndarray,
+    image: np.ndarray,
+    uv_prev: np.ndarray,
+    camera: PinholeCamera,
+    *,
+    R_prev_cur: np.ndarray | None = None,
+    uv_guess: np.ndarray | None = None,
+    max_back_px: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
     """Pixels `uv_prev` (N, 2) of `image_prev` followed into `image` (both 8-bit grey, same
     size). `R_prev_cur` (3, 3), the rotation of the current camera in the previous one (from
     the gyroscope), starts the flow where that rotation alone moves each pixel (as
     VINS-Fusion does): at 5° per frame (`boxes` at 2× speed) plain pyramidal flow keeps 34-73 %
     of the features from one frame to the next, started from the rotation 81-89 %. Returns the followed pixels
     (N, 2) and whether each was found (forward and backward flow converged, the backward flow
-    returns within `max_back_px` pixels, inside the image). A change of exposure between the
+    returns within `max_back_px` pixels, inside the image). `uv_guess` (N, 2), where given
+    instead of `R_prev_cur`, starts each pixel's flow there (NaN rows: at its own pixel; e.g.
+    where a predicted pose puts a point of known depth). A change of exposure between the
     two images beyond `GAIN_TOLERANCE` is undone first (:func:`gain_matched`)."""
     if len(uv_prev) == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
     image = gain_matched(image_prev, image)
     p0 = uv_prev.astype(np.float32).reshape(-1, 1, 2)
-    if R_prev_cur is None:
+    if uv_guess is not None:
+        start = np.where(np.all(np.isfinite(uv_guess), axis=1)[:, None], uv_guess, uv_prev).astype(np.float32).reshape(-1, 1, 2)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, start, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
+    elif R_prev_cur is None:
         p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, None, **_LK)  # type: ignore[call-overload]  # OpenCV's stubs: nextPts may be None (an output)
     else:
         rays = camera.normalize(uv_prev) @ R_prev_cur

@@ -132,7 +132,7 @@ class StereoEngine(CoreEngine):
                 predicted = c.constant_velocity(i)
                 tracked = c.track(i, kp, predicted=predicted, verify_below=self._verify_below(), left=left)
                 if not tracked.ok:
-                    tracked = self._placed_by_flow(i, left, right, tracked, R_world_predicted=predicted[0])
+                    tracked = self._placed_by_flow(i, left, right, tracked, R_world_predicted=predicted[0], t_world_predicted=predicted[1])
                 reason = self._keyframe_reason(i, kp, tracked)
             timing[Stage.TRACKING] += 1e3 * (time.perf_counter() - t0)
             c.remember_frame(i, tracked.R, tracked.t)
@@ -156,16 +156,16 @@ class StereoEngine(CoreEngine):
 
     # ------------------------------------------------------------------ tracking
 
-    def _placed_by_flow(self, i: int, left: np.ndarray, right: np.ndarray, lost: Tracked, *, R_world_predicted: np.ndarray) -> Tracked:
+    def _placed_by_flow(self, i: int, left: np.ndarray, right: np.ndarray, lost: Tracked, *, R_world_predicted: np.ndarray, t_world_predicted: np.ndarray) -> Tracked:
         """Frame i, which the map could not place (`lost`), placed by optical flow from the
-        last placed frame (`stages.flow_track`; the motion model's rotation
-        `R_world_predicted` starts a second try); `lost` itself where that fails too or is
+        last placed frame (`stages.flow_track`; the motion model's pose `R_world_predicted`,
+        `t_world_predicted` starts a second try); `lost` itself where that fails too or is
         off (`flow_track` None) or no frame was placed yet in this run."""
         s = self.settings
         reference = self._flow_reference
         if s.flow_track is None or reference is None:
             return lost
-        pose = track_by_flow(self.core.camera, reference, left, right, settings=s.flow_track, seed=s.seed + i, R_world_predicted=R_world_predicted)
+        pose = track_by_flow(self.core.camera, reference, left, right, settings=s.flow_track, seed=s.seed + i, R_world_predicted=R_world_predicted, t_world_predicted=t_world_predicted)
         if not pose.ok:
             return lost
         self.core.messages.append(f"frame {i}: placed by optical flow from frame {reference.frame} ({pose.inliers} inliers; the map could not place it)")

@@ -8,7 +8,7 @@ frame whose pose is known, with its left and right images) gets Shi-Tomasi corne
 low quality level, their depth from its own right image (rectified: a search along the
 same row, then flow from the best match, forward-backward checked; `follow_along_row`),
 and the corners followed into the frame's left image (forward-backward checked; from the
-reference's pixels and, given the motion model's rotation, from where it moves them)
+reference's pixels and, given the motion model's pose, from where it puts their points)
 give 3D-2D matches for EPnP-RANSAC and a robust refinement (`backend.pipeline.tracking`);
 an inlier must also be found in the frame's own right image where the pose puts it. The pose stands only with
 `min_inliers` inliers and a translation that they constrain to `max_translation_std_m`
@@ -119,17 +119,20 @@ def track_by_flow(
     settings: FlowTrackSettings,
     seed: int = 0,
     R_world_predicted: np.ndarray | None = None,
+    t_world_predicted: np.ndarray | None = None,
 ) -> FlowPose:
     """The pose of the frame whose rectified pair is `left`, `right`, from `reference` by
     flow (module docstring). An inlier must also agree with the frame's own stereo: followed
     into `right`, it lies within `outlier_px` of where the pose puts it there (a wrong
     depth at the reference, e.g. flow into its right image caught on the grain's repeat, is
     what the left image alone cannot see: consistent wrong depths fit a wrong pose). With
-    `R_world_predicted` (the frame's predicted rotation, camera to world) the flow is also
-    started where that rotation alone moves each corner (`follow`'s `R_prev_cur`), and the
-    placed pose with more inliers stands: a turn of 2-3° moves a faint grain beyond the
-    pyramid's reach, and flow that stays where it started fits a pose near the reference's
-    with a few dozen inliers (`low-texture` seed 0, frame 6: 27 inliers, 9 cm off). `ok`
+    the frame's predicted pose (`R_world_predicted`, `t_world_predicted`: camera to world,
+    metres; the motion model's) the flow is also started where that pose puts each corner's
+    point, and the placed pose with more inliers stands: a turn of 2-3° moves a faint grain
+    beyond the pyramid's reach, and flow that stays where it started fits a pose near the
+    reference's with a few dozen inliers (`low-texture` seed 0, frame 6: 27 inliers, 9 cm
+    off); a start from the predicted rotation alone left `low-texture` at speed 3 with 6-7
+    lost frames on the tuning seeds, from the pose with none. `ok`
     False where too few corners, matches or inliers are found or the translation is not
     constrained enough."""
     s = settings
@@ -138,11 +141,15 @@ def track_by_flow(
     uv_ref, p_ref = stereo_corners(camera, reference.left, reference.right, s)
     if len(uv_ref) < s.min_inliers:
         return fail
-    pose = _pose_by_flow(camera, reference, left, right, uv_ref, p_ref, s, seed=seed, R_ref_frame=None)
-    if R_world_predicted is None:
+    pose = _pose_by_flow(camera, reference, left, right, uv_ref, p_ref, s, seed=seed, uv_guess=None)
+    if R_world_predicted is None or t_world_predicted is None:
         return pose
-    turned = _pose_by_flow(camera, reference, left, right, uv_ref, p_ref, s, seed=seed, R_ref_frame=R0.T @ R_world_predicted)
-    return turned if (turned.ok, turned.inliers) > (pose.ok, pose.inliers) else pose
+    p_predicted = (p_ref @ R0.T + t0 - t_world_predicted) @ R_world_predicted  # the corners' points in the predicted camera
+    guess = np.full((len(p_ref), 2), np.nan)
+    ahead = p_predicted[:, 2] > s.min_depth_m
+    guess[ahead] = camera.project(p_predicted[ahead])
+    predicted = _pose_by_flow(camera, reference, left, right, uv_ref, p_ref, s, seed=seed, uv_guess=guess)
+    return predicted if (predicted.ok, predicted.inliers) > (pose.ok, pose.inliers) else pose
 
 
 def _pose_by_flow(
@@ -155,14 +162,14 @@ def _pose_by_flow(
     s: FlowTrackSettings,
     *,
     seed: int,
-    R_ref_frame: np.ndarray | None,
+    uv_guess: np.ndarray | None,
 ) -> FlowPose:
     """`track_by_flow` for the reference's corners `uv_ref` (N, 2) with points `p_ref` (N, 3)
-    in its camera, the flow started at the reference's pixels (`R_ref_frame` None) or
-    where the rotation `R_ref_frame` (the frame's camera in the reference's) moves them."""
+    in its camera, the flow started at the reference's pixels (`uv_guess` None) or at
+    `uv_guess` (N, 2; NaN rows at their own pixels)."""
     R0, t0 = reference.R_world_camera, reference.t_world_camera
     fail = FlowPose(R0.copy(), t0.copy(), 0, float("inf"), False)
-    uv, ok = follow(reference.left, left, uv_ref, camera, R_prev_cur=R_ref_frame)
+    uv, ok = follow(reference.left, left, uv_ref, camera, uv_guess=uv_guess)
     if np.count_nonzero(ok) < s.min_inliers:
         return fail
     p_world = p_ref[ok] @ R0.T + t0

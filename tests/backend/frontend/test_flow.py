@@ -85,6 +85,20 @@ def test_the_search_along_the_row_refuses_edges_along_it_and_flat_patches() -> N
     assert follow_along_row(flat, flat, np.zeros((0, 2)), CAMERA, min_disparity_px=1.0, max_disparity_px=250.0)[0].shape == (0, 2)
 
 
+def test_follow_started_from_given_pixels_reaches_a_far_shift() -> None:
+    image = _textured(3)
+    shifted = np.roll(image, 60, axis=1)  # 60 px to the right: beyond the pyramid's reach from zero
+    uv0 = cv2.goodFeaturesToTrack(image, 200, 0.01, 20).reshape(-1, 2).astype(float)
+    uv0 = uv0[(uv0[:, 0] > 30) & (uv0[:, 0] < 650)]
+    truth = uv0 + [60.0, 0.0]
+    uv, ok = follow(image, shifted, uv0, CAMERA)
+    assert (ok & (np.linalg.norm(uv - truth, axis=1) < 0.3)).mean() < 0.5
+    guess = truth + [2.0, -1.5]  # a few pixels off, as a predicted pose puts them
+    guess[0] = np.nan  # no guess: started at its own pixel
+    uv, ok = follow(image, shifted, uv0, CAMERA, uv_guess=guess)
+    assert (ok[1:] & (np.linalg.norm(uv[1:] - truth[1:], axis=1) < 0.3)).mean() > 0.9
+
+
 def test_follow_refuses_what_does_not_come_back_and_what_leaves_the_image() -> None:
     image = _textured(1)
     uv0 = np.array([[376.0, 240.0], [745.0, 240.0]])
