@@ -86,18 +86,16 @@ def follow(
         return np.zeros((0, 2)), np.zeros(0, bool)
     image = gain_matched(image_prev, image)
     p0 = uv_prev.astype(np.float32).reshape(-1, 1, 2)
-    if uv_guess is not None:
-        start = np.where(np.all(np.isfinite(uv_guess), axis=1)[:, None], uv_guess, uv_prev).astype(np.float32).reshape(-1, 1, 2)
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, start, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
-    elif R_prev_cur is None:
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, None, **_LK)  # type: ignore[call-overload]  # OpenCV's stubs: nextPts may be None (an output)
-    else:
+    if uv_guess is None and R_prev_cur is not None:
         rays = camera.normalize(uv_prev) @ R_prev_cur
         ahead = rays[:, 2] > 0.1
-        guess = uv_prev.astype(float).copy()
-        guess[ahead] = camera.project(rays[ahead])
-        guess = guess.astype(np.float32).reshape(-1, 1, 2)
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
+        uv_guess = np.full((len(uv_prev), 2), np.nan)
+        uv_guess[ahead] = camera.project(rays[ahead])
+    if uv_guess is None:
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, None, **_LK)  # type: ignore[call-overload]  # OpenCV's stubs: nextPts may be None (an output)
+    else:
+        start = np.where(np.all(np.isfinite(uv_guess), axis=1)[:, None], uv_guess, uv_prev).astype(np.float32).reshape(-1, 1, 2)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(image_prev, image, p0, start, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
     back, st_b, _ = cv2.calcOpticalFlowPyrLK(image, image_prev, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
     uv = p1.reshape(-1, 2).astype(float)
     ok = (st.ravel() == 1) & (st_b.ravel() == 1) & (np.linalg.norm((back - p0).reshape(-1, 2), axis=1) < max_back_px)
@@ -159,9 +157,9 @@ def follow_along_row(
     if not ok.any():
         return uv_right, found
     p0 = uv_left[ok].astype(np.float32).reshape(-1, 1, 2)
-    params = dict(winSize=_LK["winSize"], maxLevel=1, criteria=_LK["criteria"])
-    p1, st, _ = cv2.calcOpticalFlowPyrLK(left, right, p0, guess[ok].reshape(-1, 1, 2), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)  # type: ignore[call-overload]
-    back, st_b, _ = cv2.calcOpticalFlowPyrLK(right, left, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)  # type: ignore[call-overload]
+    params: _LkParams = {**_LK, "maxLevel": 1}  # the search is within a pixel: no pyramid to jump from
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(left, right, p0, guess[ok].reshape(-1, 1, 2), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)
+    back, st_b, _ = cv2.calcOpticalFlowPyrLK(right, left, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **params)
     uv = p1.reshape(-1, 2).astype(float)
     good = (st.ravel() == 1) & (st_b.ravel() == 1) & (np.linalg.norm((back - p0).reshape(-1, 2), axis=1) < max_back_px)
     good &= np.all(np.isfinite(uv), axis=1) & camera.in_image(uv)
